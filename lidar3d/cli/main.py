@@ -1,0 +1,68 @@
+"""The ``lidar3d`` command line.
+
+Each subcommand lives in its own module ``lidar3d/cli/cmd_<name>.py`` that defines
+``register(subparsers)``; the module must import nothing heavy at its top (import inside ``run``),
+so ``lidar3d --help`` stays instant. Every subcommand has a library-function twin.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import logging
+import pkgutil
+import sys
+from collections.abc import Sequence
+
+from lidar3d import __version__
+from lidar3d.errors import Lidar3dError
+
+__all__ = ["main", "entry_point", "build_parser"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="lidar3d",
+        description="LiDAR SLAM for Velodyne VLP-16 recordings, in the style of LeGO-LOAM.",
+    )
+    parser.add_argument("--version", action="version", version=f"lidar3d {__version__}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
+    parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
+    subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
+    package = importlib.import_module("lidar3d.cli")
+    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+        if info.name.startswith("cmd_"):
+            importlib.import_module(f"lidar3d.cli.{info.name}").register(subparsers)
+    return parser
+
+
+def _configure_logging(verbose: bool, quiet: bool) -> None:
+    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
+    handler = logging.StreamHandler(sys.stderr)
+    handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
+    root = logging.getLogger("lidar3d")
+    root.handlers[:] = [handler]
+    root.setLevel(level)
+    root.propagate = False
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the CLI in process; returns the exit code (0 ok, 1 known error, 130 interrupted)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help()
+        return 1
+    _configure_logging(args.verbose, args.quiet)
+    try:
+        return int(args.func(args) or 0)
+    except Lidar3dError as err:
+        print(f"lidar3d {args.command}: error: {err}", file=sys.stderr)
+        return 1
+    except KeyboardInterrupt:
+        print(f"lidar3d {args.command}: interrupted; finished outputs are kept", file=sys.stderr)
+        return 130
+
+
+def entry_point() -> None:  # pragma: no cover - thin wrapper for the console script
+    sys.exit(main())

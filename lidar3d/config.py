@@ -1,0 +1,226 @@
+"""Configuration: one frozen dataclass section per stage, TOML in and out.
+
+Defaults are LeGO-LOAM's VLP-16 values (``utility.h`` at commit 896a7a95, see
+``shared/reference/lego-loam-and-peers.md``). A TOML file may override any subset; unknown keys
+and wrongly typed values are rejected with the dotted path that is wrong.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import sys
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from lidar3d.errors import ConfigError
+from lidar3d.sensors import SENSOR_MODELS, SensorModel
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - exercised on Python 3.10 only
+    import tomli as tomllib
+
+__all__ = [
+    "Config",
+    "SensorConfig",
+    "InputConfig",
+    "SegmentationConfig",
+    "FeatureConfig",
+    "load_config",
+    "config_from_dict",
+    "config_to_toml",
+]
+
+
+@dataclass(frozen=True, slots=True)
+class SensorConfig:
+    """Sensor geometry. ``model`` picks a preset; non-empty overrides replace its values."""
+
+    model: str = "vlp16"
+    elevation_deg: tuple[float, ...] = ()  # empty: the preset's table
+    n_columns: int = 0  # 0: the preset's value
+    rotation_hz: float = 0.0  # 0: the preset's value
+    min_range_m: float = 1.0  # LeGO-LOAM sensorMinimumRange
+    max_range_m: float = 0.0  # 0: the preset's rated range
+    mount_pitch_deg: float = 0.0  # LeGO-LOAM sensorMountAngle
+    mount_roll_deg: float = 0.0
+
+    @property
+    def sensor(self) -> SensorModel:
+        """The resolved sensor model (preset plus overrides)."""
+        base = SENSOR_MODELS[self.model]
+        return SensorModel(
+            name=base.name,
+            elevation_deg=tuple(self.elevation_deg) or base.elevation_deg,
+            n_columns=self.n_columns or base.n_columns,
+            rotation_hz=self.rotation_hz or base.rotation_hz,
+            max_range_m=self.max_range_m or base.max_range_m,
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class InputConfig:
+    """How scans are read from bags."""
+
+    topic: str = ""  # empty: auto-detect the only PointCloud2 topic
+
+
+@dataclass(frozen=True, slots=True)
+class SegmentationConfig:
+    """Range-image ground segmentation and clustering (LeGO-LOAM imageProjection)."""
+
+    ground_rows: int = 8  # rows 0..7 may be ground (groundScanInd = 7)
+    ground_angle_threshold_deg: float = 10.0
+    cluster_angle_deg: float = 60.0  # segmentTheta
+    min_cluster_points: int = 30
+    min_cluster_points_multi_ring: int = 5  # segmentValidPointNum
+    min_cluster_rings: int = 3  # segmentValidLineNum
+    ground_column_stride: int = 5  # ground kept on every 5th column in the segmented cloud
+
+
+@dataclass(frozen=True, slots=True)
+class FeatureConfig:
+    """Curvature features (LeGO-LOAM featureAssociation)."""
+
+    curvature_half_window: int = 5
+    edge_threshold: float = 0.1  # m^2, unnormalised curvature
+    planar_threshold: float = 0.1
+    sections_per_ring: int = 6
+    sharp_per_section: int = 2
+    less_sharp_per_section: int = 20
+    flat_per_section: int = 4
+    less_flat_voxel_m: float = 0.2
+    occlusion_depth_m: float = 0.3
+    parallel_beam_ratio: float = 0.02
+
+
+@dataclass(frozen=True, slots=True)
+class Config:
+    """The whole configuration."""
+
+    sensor: SensorConfig = field(default_factory=SensorConfig)
+    input: InputConfig = field(default_factory=InputConfig)
+    segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
+    features: FeatureConfig = field(default_factory=FeatureConfig)
+
+
+def _coerce(value: Any, annotation: Any, path: str) -> Any:
+    """Check ``value`` against a field annotation and convert it (int -> float, list -> tuple)."""
+    origin = typing.get_origin(annotation)
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"config {path}: expected a list, got {type(value).__name__}")
+        (item_type, _ellipsis) = typing.get_args(annotation)
+        return tuple(_coerce(v, item_type, f"{path}[{i}]") for i, v in enumerate(value))
+    if annotation is bool:
+        if not isinstance(value, bool):
+            raise ConfigError(f"config {path}: expected true/false, got {value!r}")
+        return value
+    if annotation is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"config {path}: expected an integer, got {value!r}")
+        return value
+    if annotation is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"config {path}: expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise ConfigError(f"config {path}: expected a finite number, got {value!r}")
+        return float(value)
+    if annotation is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"config {path}: expected a string, got {value!r}")
+        return value
+    raise TypeError(f"unsupported config annotation {annotation!r} at {path}")
+
+
+def _build(cls: type, data: dict[str, Any], path: str) -> Any:
+    if not isinstance(data, dict):
+        raise ConfigError(f"config {path}: expected a table, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    names = {f.name for f in dataclasses.fields(cls)}
+    for key in data:
+        if key not in names:
+            where = f"{path}.{key}" if path else key
+            raise ConfigError(f"config: unknown key '{where}' (known: {', '.join(sorted(names))})")
+    kwargs = {}
+    for f in dataclasses.fields(cls):
+        if f.name not in data:
+            continue
+        where = f"{path}.{f.name}" if path else f.name
+        hint = hints[f.name]
+        if dataclasses.is_dataclass(hint):
+            kwargs[f.name] = _build(hint, data[f.name], where)
+        else:
+            kwargs[f.name] = _coerce(data[f.name], hint, where)
+    return cls(**kwargs)
+
+
+def _validate(config: Config) -> Config:
+    if config.sensor.model not in SENSOR_MODELS:
+        raise ConfigError(
+            f"config sensor.model: unknown model {config.sensor.model!r} (known: {', '.join(SENSOR_MODELS)})"
+        )
+    try:
+        sensor = config.sensor.sensor
+    except ValueError as err:
+        raise ConfigError(f"config sensor: {err}") from err
+    if config.segmentation.ground_rows > sensor.n_rings:
+        raise ConfigError(
+            f"config segmentation.ground_rows: {config.segmentation.ground_rows} exceeds the "
+            f"{sensor.n_rings} rings of {sensor.name}"
+        )
+    return config
+
+
+def config_from_dict(data: dict[str, Any]) -> Config:
+    """Build a validated :class:`Config` from a nested dict (as parsed from TOML)."""
+    return _validate(_build(Config, data, ""))
+
+
+def load_config(path: str | Path | None) -> Config:
+    """Load a TOML configuration file; ``None`` gives the defaults."""
+    if path is None:
+        return Config()
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file not found") from None
+    except OSError as err:
+        raise ConfigError(f"{path}: cannot read config file: {err.strerror}") from err
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    try:
+        return config_from_dict(data)
+    except ConfigError as err:
+        raise ConfigError(f"{path}: {err}") from err
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"')
+        return f'"{escaped}"'
+    if isinstance(value, tuple):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {value!r} as TOML")
+
+
+def config_to_toml(config: Config) -> str:
+    """The configuration as TOML text that :func:`load_config` reads back to an equal object."""
+    lines = ["# lidar3d configuration (every key optional; these are the values in force)"]
+    for section in dataclasses.fields(config):
+        lines.append("")
+        lines.append(f"[{section.name}]")
+        doc_fields = getattr(config, section.name)
+        for f in dataclasses.fields(doc_fields):
+            lines.append(f"{f.name} = {_toml_value(getattr(doc_fields, f.name))}")
+    return "\n".join(lines) + "\n"

@@ -1,0 +1,53 @@
+"""Point clouds to PCD through Open3D's tensor API (binary, float32 x y z, extra scalar fields)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from lidar3d.errors import OutputError
+from lidar3d.io.atomic import atomic_path
+
+__all__ = ["write_pcd", "read_pcd"]
+
+
+def write_pcd(path: str | Path, points: np.ndarray, **fields: np.ndarray) -> None:
+    """Write ``points`` (N,3) and per-point scalar ``fields`` (each (N,)) as a binary PCD.
+
+    Typical fields: ``intensity`` (float32) and ``label`` (int32). The file opens in PCL,
+    CloudCompare and Open3D. Written atomically.
+    """
+    import open3d as o3d
+
+    points = np.asarray(points)
+    if points.ndim != 2 or points.shape[1] != 3:
+        raise ValueError(f"points must be (N, 3), got {points.shape}")
+    cloud = o3d.t.geometry.PointCloud()
+    cloud.point.positions = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
+    for name, values in fields.items():
+        values = np.asarray(values)
+        if values.shape != (points.shape[0],):
+            raise ValueError(f"field {name} must be ({points.shape[0]},), got {values.shape}")
+        dtype = np.int32 if np.issubdtype(values.dtype, np.integer) else np.float32
+        cloud.point[name] = o3d.core.Tensor(np.ascontiguousarray(values.reshape(-1, 1), dtype=dtype))
+    with atomic_path(path) as tmp:
+        ok = o3d.t.io.write_point_cloud(str(tmp), cloud, write_ascii=False, compressed=False)
+        if not ok:
+            raise OutputError(f"{path}: Open3D could not write the point cloud")
+
+
+def read_pcd(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Read a PCD: (N,3) float64 points and a dict of its other per-point fields."""
+    import open3d as o3d
+
+    path = Path(path)
+    if not path.exists():
+        raise OutputError(f"{path}: point cloud file not found")
+    cloud = o3d.t.io.read_point_cloud(str(path))
+    points = cloud.point.positions.numpy().astype(np.float64)
+    extra = {}
+    for name in cloud.point:
+        if name != "positions":
+            extra[name] = cloud.point[name].numpy().reshape(-1)
+    return points, extra
