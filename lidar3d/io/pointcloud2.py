@@ -1,0 +1,457 @@
+"""``sensor_msgs/PointCloud2`` <-> :class:`~lidar3d.records.Scan`, through NumPy structured dtypes.
+
+Encoding writes exactly the layout of the ROS ``velodyne_pointcloud`` driver (``PointXYZIRT``)::
+
+    field      offset  datatype   meaning
+    x, y, z    0,4,8   FLOAT32    metres, lidar frame (4 bytes of padding follow z)
+    intensity  16      FLOAT32    0-255
+    ring       20      UINT16     laser index, 0 = lowest beam
+    time       24      FLOAT32    seconds relative to header.stamp
+    point_step 32, height 1, is_dense true, little-endian
+
+Decoding builds a structured dtype from the message's own ``fields`` (honouring ``point_step``,
+offsets, ``is_bigendian``, ``height``/``width`` and row padding in ``row_step``) and views the
+``data`` buffer through it without copying. The field variants real drivers produce all decode:
+
+* ``time`` float32, seconds relative to the stamp (velodyne_pointcloud);
+* ``t`` uint32 nanoseconds relative to the stamp (Ouster); any integer time field (``t``,
+  ``time_stamp``, ``offset_time``, ``time``) is read as relative nanoseconds;
+* ``timestamp`` float64 absolute seconds (Hesai, RoboSense); any float time field whose values
+  exceed :data:`ABSOLUTE_TIME_THRESHOLD_S` is taken as absolute and made relative to the stamp;
+* no ring field: the ring is the beam of the sensor's elevation table nearest to each point's
+  elevation angle (:meth:`lidar3d.sensors.SensorModel.ring_from_elevation`);
+* no time field: the time is derived from the azimuth as LeGO-LOAM does (see
+  :func:`time_from_azimuth`).
+
+Points with a NaN/inf coordinate and points closer than ``min_range_m`` are dropped and counted
+in the returned :class:`DecodeStats`.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any
+
+import numpy as np
+
+from lidar3d.errors import PointCloudError
+from lidar3d.records import Scan
+from lidar3d.sensors import VLP16, SensorModel
+
+__all__ = [
+    "PointFieldType",
+    "PointField",
+    "PointCloud2Parts",
+    "DecodeStats",
+    "VELODYNE_FIELDS",
+    "VELODYNE_POINT_STEP",
+    "ABSOLUTE_TIME_THRESHOLD_S",
+    "encode_scan",
+    "parts_to_message",
+    "parts_from_message",
+    "decode_pointcloud2",
+    "decode_parts",
+    "time_from_azimuth",
+    "ring_table_from_elevation",
+    "RING_ORDER_MIN_CORRELATION",
+    "RING_FIELD_NAMES",
+    "TIME_FIELD_NAMES",
+    "INTENSITY_FIELD_NAMES",
+]
+
+logger = logging.getLogger(__name__)
+
+#: A float time field with values above this many seconds holds absolute times (epoch seconds).
+ABSOLUTE_TIME_THRESHOLD_S = 1.0e5
+_START_TOLERANCE_RAD = 5.0e-4
+#: Rank correlation between ring values and their elevations below which rings are renumbered.
+RING_ORDER_MIN_CORRELATION = 0.9
+
+
+class PointFieldType(IntEnum):
+    """``sensor_msgs/PointField`` datatype codes."""
+
+    INT8 = 1
+    UINT8 = 2
+    INT16 = 3
+    UINT16 = 4
+    INT32 = 5
+    UINT32 = 6
+    FLOAT32 = 7
+    FLOAT64 = 8
+
+
+_NUMPY_TYPE = {
+    PointFieldType.INT8: "i1",
+    PointFieldType.UINT8: "u1",
+    PointFieldType.INT16: "i2",
+    PointFieldType.UINT16: "u2",
+    PointFieldType.INT32: "i4",
+    PointFieldType.UINT32: "u4",
+    PointFieldType.FLOAT32: "f4",
+    PointFieldType.FLOAT64: "f8",
+}
+
+
+@dataclass(frozen=True, slots=True)
+class PointField:
+    """One ``sensor_msgs/PointField``: ``name`` at byte ``offset`` with ``datatype`` (code 1-8)."""
+
+    name: str
+    offset: int
+    datatype: int
+    count: int = 1
+
+
+#: The velodyne_pointcloud ``PointXYZIRT`` layout.
+VELODYNE_FIELDS: tuple[PointField, ...] = (
+    PointField("x", 0, PointFieldType.FLOAT32),
+    PointField("y", 4, PointFieldType.FLOAT32),
+    PointField("z", 8, PointFieldType.FLOAT32),
+    PointField("intensity", 16, PointFieldType.FLOAT32),
+    PointField("ring", 20, PointFieldType.UINT16),
+    PointField("time", 24, PointFieldType.FLOAT32),
+)
+VELODYNE_POINT_STEP = 32
+
+
+@dataclass(frozen=True, slots=True)
+class PointCloud2Parts:
+    """The contents of a ``sensor_msgs/PointCloud2``, independent of any ROS type system.
+
+    Attributes:
+        stamp_ns: header stamp in integer nanoseconds.
+        frame_id: header frame.
+        height, width: cloud shape (height 1 for unorganised clouds).
+        fields: the point fields.
+        is_bigendian: byte order of ``data``.
+        point_step: bytes per point.
+        row_step: bytes per row (>= ``width * point_step``).
+        data: (height * row_step,) uint8 buffer.
+        is_dense: true when no point is invalid.
+    """
+
+    stamp_ns: int
+    frame_id: str
+    height: int
+    width: int
+    fields: tuple[PointField, ...]
+    is_bigendian: bool
+    point_step: int
+    row_step: int
+    data: np.ndarray
+    is_dense: bool
+
+
+@dataclass(frozen=True, slots=True)
+class DecodeStats:
+    """What decoding one cloud kept and dropped (all counts of points)."""
+
+    n_input: int
+    n_nonfinite: int
+    n_below_min_range: int
+
+    @property
+    def n_kept(self) -> int:
+        return self.n_input - self.n_nonfinite - self.n_below_min_range
+
+
+def _velodyne_dtype() -> np.dtype:
+    return np.dtype(
+        {
+            "names": [f.name for f in VELODYNE_FIELDS],
+            "formats": ["<" + _NUMPY_TYPE[PointFieldType(f.datatype)] for f in VELODYNE_FIELDS],
+            "offsets": [f.offset for f in VELODYNE_FIELDS],
+            "itemsize": VELODYNE_POINT_STEP,
+        }
+    )
+
+
+_VELODYNE_DTYPE = _velodyne_dtype()
+
+
+def encode_scan(scan: Scan, *, frame_id: str = "velodyne") -> PointCloud2Parts:
+    """Encode ``scan`` in the velodyne_pointcloud layout (see the module docstring).
+
+    Coordinates, intensity and time offsets are stored as float32, so a round trip returns the
+    float32-rounded values. Padding bytes are zero.
+    """
+    n = len(scan)
+    records = np.zeros(n, dtype=_VELODYNE_DTYPE)
+    records["x"] = scan.points[:, 0]
+    records["y"] = scan.points[:, 1]
+    records["z"] = scan.points[:, 2]
+    records["intensity"] = scan.intensity
+    records["ring"] = scan.ring
+    records["time"] = scan.time_offset_s
+    return PointCloud2Parts(
+        stamp_ns=scan.stamp_ns,
+        frame_id=frame_id,
+        height=1,
+        width=n,
+        fields=VELODYNE_FIELDS,
+        is_bigendian=False,
+        point_step=VELODYNE_POINT_STEP,
+        row_step=VELODYNE_POINT_STEP * n,
+        data=records.view(np.uint8).reshape(-1),
+        is_dense=True,
+    )
+
+
+def parts_to_message(parts: PointCloud2Parts, typestore: Any) -> Any:
+    """Build the ``sensor_msgs/msg/PointCloud2`` object of a rosbags ``typestore`` (ROS1 or ROS2)."""
+    types = typestore.types
+    cloud_type = types["sensor_msgs/msg/PointCloud2"]
+    field_type = types["sensor_msgs/msg/PointField"]
+    header_type = types["std_msgs/msg/Header"]
+    time_type = types["builtin_interfaces/msg/Time"]
+    sec, nanosec = divmod(int(parts.stamp_ns), 1_000_000_000)
+    stamp = time_type(sec=sec, nanosec=nanosec)
+    if "seq" in header_type.__dataclass_fields__:
+        header = header_type(seq=0, stamp=stamp, frame_id=parts.frame_id)
+    else:
+        header = header_type(stamp=stamp, frame_id=parts.frame_id)
+    return cloud_type(
+        header=header,
+        height=parts.height,
+        width=parts.width,
+        fields=[field_type(name=f.name, offset=f.offset, datatype=int(f.datatype), count=f.count) for f in parts.fields],
+        is_bigendian=parts.is_bigendian,
+        point_step=parts.point_step,
+        row_step=parts.row_step,
+        data=np.ascontiguousarray(parts.data, dtype=np.uint8).reshape(-1),
+        is_dense=parts.is_dense,
+    )
+
+
+def parts_from_message(message: Any) -> PointCloud2Parts:
+    """The parts of a deserialised rosbags PointCloud2 (ROS1 or ROS2); ``data`` is not copied."""
+    stamp = message.header.stamp
+    return PointCloud2Parts(
+        stamp_ns=int(stamp.sec) * 1_000_000_000 + int(stamp.nanosec),
+        frame_id=message.header.frame_id,
+        height=int(message.height),
+        width=int(message.width),
+        fields=tuple(PointField(f.name, int(f.offset), int(f.datatype), int(f.count)) for f in message.fields),
+        is_bigendian=bool(message.is_bigendian),
+        point_step=int(message.point_step),
+        row_step=int(message.row_step),
+        data=message.data,
+        is_dense=bool(message.is_dense),
+    )
+
+
+def decode_pointcloud2(
+    message: Any,
+    *,
+    sensor: SensorModel = VLP16,
+    min_range_m: float = 0.0,
+) -> tuple[Scan, DecodeStats]:
+    """Decode a deserialised rosbags ``PointCloud2`` into a :class:`Scan` (see :func:`decode_parts`)."""
+    return decode_parts(parts_from_message(message), sensor=sensor, min_range_m=min_range_m)
+
+
+#: Field names recognised for each role, in order of preference.
+RING_FIELD_NAMES = ("ring", "channel", "laser_id", "line")
+TIME_FIELD_NAMES = ("time", "t", "timestamp", "time_stamp", "offset_time", "time_offset")
+INTENSITY_FIELD_NAMES = ("intensity", "reflectivity", "i")
+
+
+def _structured_dtype(parts: PointCloud2Parts, wanted: dict[str, PointField]) -> np.dtype:
+    order = ">" if parts.is_bigendian else "<"
+    names, formats, offsets = [], [], []
+    for role, field in wanted.items():
+        try:
+            code = PointFieldType(field.datatype)
+        except ValueError:
+            raise PointCloudError(
+                f"field {field.name!r} has unsupported datatype {field.datatype} "
+                f"(PointField codes are 1-8: {', '.join(f'{t.value}={t.name}' for t in PointFieldType)})"
+            ) from None
+        size = np.dtype(_NUMPY_TYPE[code]).itemsize
+        if field.offset < 0 or field.offset + size > parts.point_step:
+            raise PointCloudError(
+                f"field {field.name!r} ({code.name} at offset {field.offset}) does not fit in "
+                f"point_step {parts.point_step}"
+            )
+        if field.count != 1:
+            raise PointCloudError(f"field {field.name!r} has count {field.count}; only scalar fields are supported")
+        names.append(role)
+        formats.append(order + _NUMPY_TYPE[code])
+        offsets.append(field.offset)
+    return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": parts.point_step})
+
+
+def _point_records(parts: PointCloud2Parts, dtype: np.dtype) -> np.ndarray:
+    """A structured (height*width,) view of ``data``; rows are de-padded when row_step is larger."""
+    height, width, step = parts.height, parts.width, parts.point_step
+    if height < 0 or width < 0 or (step <= 0 and height * width > 0):
+        raise PointCloudError(f"bad cloud shape: height {height}, width {width}, point_step {step}")
+    data = np.asarray(parts.data)
+    if data.dtype != np.uint8:
+        data = data.view(np.uint8)
+    data = data.reshape(-1)
+    expected = height * width * step
+    row_step = parts.row_step if height > 0 else 0
+    if row_step == width * step or height <= 1:
+        # Dense rows (or a single row, where padding at its end is harmless): insist on the
+        # exact length width*height*point_step, allowing trailing row padding of one row.
+        if data.size != expected and not (height == 1 and data.size == row_step and row_step >= expected):
+            raise PointCloudError(
+                f"data holds {data.size} bytes but width*height*point_step = "
+                f"{width}*{height}*{step} = {expected}"
+            )
+        return np.frombuffer(data, dtype=dtype, count=height * width)
+    if row_step < width * step:
+        raise PointCloudError(f"row_step {row_step} is smaller than width*point_step = {width * step}")
+    if data.size != row_step * height:
+        raise PointCloudError(
+            f"data holds {data.size} bytes but height*row_step = {height}*{row_step} = {row_step * height}"
+        )
+    rows = data.reshape(height, row_step)[:, : width * step]
+    return np.ascontiguousarray(rows).reshape(-1).view(dtype)
+
+
+def time_from_azimuth(points: np.ndarray, sweep_period_s: float) -> np.ndarray:
+    """Per-point time offsets (s) from the azimuth, for clouds without a time field.
+
+    Follows LeGO-LOAM (``imageProjection.cpp`` ``findStartEndAngle`` and
+    ``featureAssociation.cpp`` ``adjustDistortion``, commit 896a7a95): a Velodyne turns clockwise
+    seen from above, so the clockwise azimuth ``-atan2(y, x)`` grows with time. The first point's
+    azimuth marks the sweep start; a point's time is its clockwise angle past the start over a full
+    turn, times the sweep period: ``t = ((ori - ori_start) mod 2 pi) / (2 pi) * period``. The
+    modulo replaces LeGO-LOAM's sequential ``halfPassed`` unwrapping, which needs points in firing
+    order; it differs only for points that overlap the sweep start, which get times near 0 instead
+    of near the period. Angles within :data:`_START_TOLERANCE_RAD` (0.03 deg, well under one
+    0.2-deg column) short of a full turn count as the start: coordinate rounding puts points of the
+    first firing column on either side of it.
+    """
+    if points.shape[0] == 0:
+        return np.zeros(0, dtype=np.float64)
+    orientation = -np.arctan2(points[:, 1], points[:, 0])
+    turned = np.mod(orientation - orientation[0], 2.0 * np.pi)
+    # Points a hair counter-clockwise of the first (same firing column, rounding) belong to the
+    # start of the sweep, not its end.
+    turned[turned > 2.0 * np.pi - _START_TOLERANCE_RAD] = 0.0
+    return turned * (sweep_period_s / (2.0 * np.pi))
+
+
+def ring_table_from_elevation(ring: np.ndarray, points: np.ndarray, sensor: SensorModel) -> np.ndarray | None:
+    """A lookup table renumbering a driver's ring values so that 0 is the lowest beam, or None.
+
+    ``velodyne_pointcloud`` numbers rings from the lowest beam up, as :class:`Scan` does; Ouster
+    counts from the top beam down, and some drivers use raw laser ids (interleaved elevations).
+    The median elevation of each ring value's points is compared with the value: when their rank
+    correlation is below :data:`RING_ORDER_MIN_CORRELATION` the numbering is not ascending, and
+    each value is mapped to the sensor's beam nearest to its median elevation. A high correlation
+    with a few neighbours swapped is kept as it is: at short range the beams' vertical offsets move
+    closely spaced beams (VLP-32C: 0.33 deg apart) past each other in elevation seen from the
+    origin, which is no reason to renumber. None when nothing needs to change.
+    """
+    values, inverse = np.unique(ring, return_inverse=True)
+    if values.size < 3:
+        return None
+    elevation = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
+    medians = np.array([np.median(elevation[inverse == i]) for i in range(values.size)])
+    if np.all(np.diff(medians) > 0):
+        return None
+    ranks = np.argsort(np.argsort(medians, kind="stable"), kind="stable").astype(np.float64)
+    correlation = float(np.corrcoef(np.arange(values.size, dtype=np.float64), ranks)[0, 1])
+    if correlation >= RING_ORDER_MIN_CORRELATION:
+        return None
+    table = np.arange(int(values.max()) + 1, dtype=np.uint16)
+    table[values] = sensor.ring_from_elevation(medians)
+    return table
+
+
+def _pick(fields: dict[str, PointField], names: tuple[str, ...]) -> PointField | None:
+    for name in names:
+        if name in fields:
+            return fields[name]
+    return None
+
+
+def decode_parts(
+    parts: PointCloud2Parts,
+    *,
+    sensor: SensorModel = VLP16,
+    min_range_m: float = 0.0,
+    ring_table: np.ndarray | None = None,
+) -> tuple[Scan, DecodeStats]:
+    """Decode PointCloud2 parts into a :class:`Scan` and the :class:`DecodeStats` of what was dropped.
+
+    Args:
+        parts: the cloud (see :func:`parts_from_message`).
+        sensor: used only when the cloud lacks a ring field (ring from elevation) or a time field
+            (time from azimuth and the sensor's rotation period).
+        min_range_m: points nearer than this to the origin are dropped (LeGO-LOAM drops them too).
+        ring_table: renumbering of the ring field's values (see :func:`ring_table_from_elevation`);
+            None keeps them.
+
+    Raises:
+        PointCloudError: missing x/y/z, a data length that disagrees with the shape, a field with
+            an unsupported datatype or one that does not fit in ``point_step``.
+    """
+    by_name = {f.name: f for f in parts.fields}
+    missing = [axis for axis in ("x", "y", "z") if axis not in by_name]
+    if missing:
+        raise PointCloudError(
+            f"cloud has no {'/'.join(missing)} field (fields: {', '.join(by_name) or 'none'})"
+        )
+    wanted: dict[str, PointField] = {axis: by_name[axis] for axis in ("x", "y", "z")}
+    roles = {"intensity": INTENSITY_FIELD_NAMES, "ring": RING_FIELD_NAMES, "time": TIME_FIELD_NAMES}
+    for role, names in roles.items():
+        field = _pick(by_name, names)
+        if field is not None:
+            wanted[role] = field
+    records = _point_records(parts, _structured_dtype(parts, wanted))
+
+    n_input = records.shape[0]
+    points = np.empty((n_input, 3), dtype=np.float64)
+    points[:, 0] = records["x"]
+    points[:, 1] = records["y"]
+    points[:, 2] = records["z"]
+    finite = np.isfinite(points).all(axis=1)
+    range_sq = np.einsum("ij,ij->i", points, points, optimize=False)
+    near = finite & (range_sq < min_range_m * min_range_m)
+    keep = finite & ~near
+    n_nonfinite = int(n_input - np.count_nonzero(finite))
+    n_near = int(np.count_nonzero(near))
+    all_kept = n_nonfinite == 0 and n_near == 0
+    if not all_kept:
+        points = points[keep]
+
+    def column(role: str) -> np.ndarray:
+        values = records[role]
+        return values if all_kept else values[keep]
+
+    intensity = column("intensity") if "intensity" in wanted else np.zeros(points.shape[0], np.float32)
+    if "ring" in wanted:
+        ring = column("ring")
+        if ring_table is not None:
+            ring = ring_table[np.minimum(ring.astype(np.intp), ring_table.size - 1)]
+    else:
+        elevation = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
+        ring = sensor.ring_from_elevation(elevation)
+    if "time" in wanted:
+        raw = column("time")
+        if raw.dtype.kind == "f":
+            time_s = raw.astype(np.float64)
+            if time_s.size and np.nanmax(np.abs(time_s)) > ABSOLUTE_TIME_THRESHOLD_S:
+                sec, nanosec = divmod(parts.stamp_ns, 1_000_000_000)
+                time_s = (time_s - float(sec)) - nanosec * 1e-9
+        else:
+            time_s = raw.astype(np.float64) * 1e-9
+    else:
+        time_s = time_from_azimuth(points, sensor.sweep_period_s)
+
+    stats = DecodeStats(n_input=n_input, n_nonfinite=n_nonfinite, n_below_min_range=n_near)
+    if not all_kept:
+        logger.debug(
+            "cloud at %d ns: dropped %d non-finite and %d points nearer than %.2f m of %d",
+            parts.stamp_ns, n_nonfinite, n_near, min_range_m, n_input,
+        )
+    scan = Scan(stamp_ns=parts.stamp_ns, points=points, intensity=intensity, ring=ring, time_offset_s=time_s)
+    return scan, stats
