@@ -29,6 +29,9 @@ __all__ = [
     "InputConfig",
     "SegmentationConfig",
     "FeatureConfig",
+    "GnssConfig",
+    "OdometryConfig",
+    "MappingConfig",
     "load_config",
     "config_from_dict",
     "config_to_toml",
@@ -72,13 +75,20 @@ class InputConfig:
 class SegmentationConfig:
     """Range-image ground segmentation and clustering (LeGO-LOAM imageProjection)."""
 
-    ground_rows: int = 8  # rows 0..7 may be ground (groundScanInd = 7)
+    ground_rows: int = 0  # 0: every beam below the horizon (VLP-16: rows 0..7, groundScanInd = 7)
     ground_angle_threshold_deg: float = 10.0
+    ground_continuity: bool = True  # false: LeGO-LOAM's pairwise angle test alone
+    ground_max_angle_change_deg: float = 5.0  # continuity: slope change between stacked pairs
+    ground_height_slope_deg: float = 5.0  # continuity: a ground run starting above an object must lie
+    ground_height_margin_m: float = 0.2  # within margin + distance * tan(slope) of the scan's ground level
+    ground_support_margin_m: float = 0.04  # contact: ground this close to its run's line stays ground
     cluster_angle_deg: float = 60.0  # segmentTheta
     min_cluster_points: int = 30
     min_cluster_points_multi_ring: int = 5  # segmentValidPointNum
     min_cluster_rings: int = 3  # segmentValidLineNum
     ground_column_stride: int = 5  # ground kept on every 5th column in the segmented cloud
+    outlier_column_stride: int = 5  # outlier cloud for mapping: every 5th column, rows >= ground_rows
+    use_ring_field: bool = True  # rows from the ring field (useCloudRing); false: from elevation
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,6 +105,59 @@ class FeatureConfig:
     less_flat_voxel_m: float = 0.2
     occlusion_depth_m: float = 0.3
     parallel_beam_ratio: float = 0.02
+    neighbour_max_column_gap: int = 10  # occlusion test and pick suppression stop at wider gaps
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryConfig:
+    """Scan-to-scan two-step odometry (LeGO-LOAM featureAssociation)."""
+
+    max_iterations: int = 25  # per step
+    rematch_every: int = 5  # correspondences recomputed every 5 iterations
+    min_rows: int = 10
+    degeneracy_threshold: float = 10.0
+    search_radius_m: float = 5.0  # nearestFeatureSearchSqDist = 25 m^2
+    min_previous_edges: int = 10
+    min_previous_planes: int = 100
+
+
+@dataclass(frozen=True, slots=True)
+class MappingConfig:
+    """Scan-to-submap refinement and keyframes (LeGO-LOAM mapOptmization, LIO-SAM keyframe rule)."""
+
+    corner_voxel_m: float = 0.2
+    surf_voxel_m: float = 0.4
+    max_iterations: int = 10
+    min_rows: int = 50
+    degeneracy_threshold: float = 100.0
+    converge_rotation_deg: float = 0.05
+    converge_translation_m: float = 0.0005
+    robust_scale_m: float = 0.05  # Geman-McClure scale; 0 selects LeGO-LOAM's 1 - 0.9|r| weight
+    keyframe_distance_m: float = 1.0  # LIO-SAM surroundingkeyframeAddingDistThreshold
+    keyframe_angle_deg: float = 11.46  # LIO-SAM 0.2 rad
+    submap_radius_m: float = 50.0  # surroundingKeyframeSearchRadius
+    submap_max_keyframes: int = 60
+    submap_recent_keyframes: int = 10
+    submap_cache_keyframes: int = 400
+    map_voxel_m: float = 0.2  # dense output map
+    redeskew_passes: int = 1  # re-register after deskewing again with the refined motion
+    redeskew_threshold_m: float = 0.01  # ... when the motion over a sweep changed this much
+
+
+@dataclass(frozen=True, slots=True)
+class GnssConfig:
+    """NovAtel SPAN ground truth and trajectory evaluation (lidar3d.gnss, lidar3d.metrics)."""
+
+    leap_seconds: int = 18  # GPS - UTC; 18 s since 2017-01-01
+    time_offset_s: float = 0.0  # bag clock minus GPS-derived UNIX time
+    accepted_ins_statuses: tuple[str, ...] = ("INS_SOLUTION_GOOD",)
+    require_fine_time: bool = True  # drop long-header solutions whose time status is below FINE
+    max_association_gap_s: float = 0.2  # longest reference interval interpolated across
+    origin: tuple[float, ...] = ()  # (lat_deg, lon_deg, h_ellipsoid_m); empty: first good fix
+    align: str = "se3"  # se3 (Umeyama), yaw (4-DoF) or none
+    rpe_segment_lengths_m: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
+    rpe_step_s: float = 1.0  # KITTI: a segment start every 10 frames at 10 Hz
+    rpe_distances_m: tuple[float, ...] = (10.0, 100.0)  # per fixed distance RPE (evo -d D -u m)
 
 
 @dataclass(frozen=True, slots=True)
@@ -105,6 +168,9 @@ class Config:
     input: InputConfig = field(default_factory=InputConfig)
     segmentation: SegmentationConfig = field(default_factory=SegmentationConfig)
     features: FeatureConfig = field(default_factory=FeatureConfig)
+    odometry: OdometryConfig = field(default_factory=OdometryConfig)
+    mapping: MappingConfig = field(default_factory=MappingConfig)
+    gnss: GnssConfig = field(default_factory=GnssConfig)
 
 
 def _coerce(value: Any, annotation: Any, path: str) -> Any:

@@ -1,0 +1,78 @@
+"""``lidar3d eval``: score a lidar trajectory against NovAtel SPAN ground truth.
+
+Library twin: :func:`lidar3d.metrics.span_eval.evaluate_span_files`.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+_EPILOG = """\
+examples:
+  lidar3d eval out/trajectory_tum.txt --span drive.gps --extrinsics imu_lidar.toml --out out/eval
+  lidar3d eval traj.kitti --span span.log --align yaw --time-offset 0.035 --out eval_yaw
+  lidar3d eval sim/ground_truth_tum.txt --span sim/novatel_span.log --extrinsics sim/extrinsics.toml \
+      --align none --origin 49.01135 8.4165 163.0 --out sim/eval      # georeferenced: no alignment
+
+TRAJECTORY is TUM (t x y z qx qy qz qw) or KITTI (12 columns, stamps in <name>.times.txt), with
+UNIX-time stamps of the bag clock. LOG is a NovAtel ASCII (#INSPVAXA, #INSPVAA, %INSPVASA, #BESTPOSA,
+...) or binary (.gps, raw receiver stream) log, optionally gzipped. The reference is the INS pose
+moved to the lidar: T_enu_lidar = T_enu_imu . T_imu_lidar. Writes report.json, errors.csv and PNG
+plots into DIR.
+"""
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "eval",
+        help="evaluate a trajectory against NovAtel SPAN ground truth (ATE, RPE, report)",
+        description="Evaluate a lidar trajectory against the INS solutions of a NovAtel SPAN log.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("trajectory", metavar="TRAJECTORY", help="estimated trajectory (TUM or KITTI)")
+    parser.add_argument("--span", required=True, metavar="LOG", help="NovAtel SPAN log (ASCII or binary)")
+    parser.add_argument("--extrinsics", metavar="FILE", help="T_imu_lidar (TOML or YAML); identity if omitted")
+    parser.add_argument(
+        "--align", choices=("se3", "yaw", "none"), default=None, help="alignment (default: config, se3)"
+    )
+    parser.add_argument(
+        "--time-offset", type=float, default=None, metavar="S",
+        help="bag clock minus GPS-derived UNIX time, seconds (default: config, 0)",
+    )
+    parser.add_argument(
+        "--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"), default=None,
+        help="ENU origin: WGS84 degrees and ellipsoidal height in m (default: config, else the first good fix)",
+    )
+    parser.add_argument("--config", metavar="FILE", help="TOML configuration ([gnss] section)")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder for the report")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from lidar3d.config import load_config
+    from lidar3d.errors import GnssError
+    from lidar3d.gnss.enu import GeodeticOrigin
+    from lidar3d.metrics.report import format_table
+    from lidar3d.metrics.span_eval import evaluate_span_files
+
+    config = load_config(args.config).gnss
+    origin = None
+    if args.origin is not None:
+        try:
+            origin = GeodeticOrigin(*args.origin)
+        except ValueError as err:
+            raise GnssError(f"--origin: {err}") from err
+    result = evaluate_span_files(
+        args.trajectory,
+        args.span,
+        args.out,
+        extrinsics_path=args.extrinsics,
+        align=args.align,
+        time_offset_s=args.time_offset,
+        origin=origin,
+        config=config,
+    )
+    print(format_table(result))
+    print(f"report: {args.out}")
+    return 0

@@ -1,0 +1,197 @@
+"""Evaluate a lidar trajectory against NovAtel SPAN ground truth: the library twin of ``lidar3d eval``.
+
+``evaluate_against_span`` takes a trajectory in memory (as ``lidar3d run --span`` has it);
+``evaluate_span_files`` reads the trajectory file first (TUM, or KITTI with ``.times.txt``). Both
+read the log, build the ENU reference (:mod:`lidar3d.gnss.reference`), evaluate
+(:mod:`lidar3d.metrics.evaluation`) and, given ``out_dir``, write the report
+(:mod:`lidar3d.metrics.report`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lidar3d.config import GnssConfig
+from lidar3d.gnss.enu import GeodeticOrigin
+from lidar3d.gnss.novatel import SpanLog
+from lidar3d.gnss.reader import read_span_log
+from lidar3d.gnss.reference import InsReference, origin_from_config, span_reference
+from lidar3d.io.trajectory_io import TrajectoryFileError, read_kitti, read_tum
+from lidar3d.metrics.alignment import AlignmentMode
+from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
+from lidar3d.records import Trajectory
+
+__all__ = ["SpanEvaluation", "evaluate_against_span", "evaluate_span_files", "read_trajectory"]
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class SpanEvaluation:
+    """An evaluation against SPAN ground truth, with what it was computed from.
+
+    Attributes:
+        evaluation: metrics and associated poses (reference frame: ENU at ``reference.origin``).
+        reference: the INS reference (IMU poses, quality flags) it used.
+        log: the decoded log (its ``stats`` say what was read and rejected).
+        T_imu_lidar: (4, 4) extrinsic applied to the reference.
+        config: the resolved ``gnss`` settings.
+        trajectory_source, span_source: file names where known, for the report.
+        report_files: paths written by the report (empty without ``out_dir``).
+    """
+
+    evaluation: Evaluation
+    reference: InsReference
+    log: SpanLog
+    T_imu_lidar: np.ndarray
+    config: GnssConfig
+    trajectory_source: str = ""
+    span_source: str = ""
+    report_files: tuple[Path, ...] = ()
+
+
+def _malformed_kitti_line(path: Path) -> str:
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        for token in line.split():
+            try:
+                float(token)
+            except ValueError:
+                return f"{path}:{lineno}: not a number ({token!r}) in {line.strip()!r}"
+    return f"{path}: malformed KITTI trajectory"
+
+
+def read_trajectory(path: str | Path) -> Trajectory:
+    """Read a TUM (8 columns) or KITTI (12 columns, stamps from ``.times.txt``) trajectory.
+
+    The format is taken from the first data row. Raises :class:`TrajectoryFileError` naming the line
+    of a malformed row.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise TrajectoryFileError(f"{path}: trajectory file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise TrajectoryFileError(f"{path}: cannot read trajectory file: {err}") from err
+    first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), None)
+    if first is None:
+        raise TrajectoryFileError(f"{path}: trajectory file has no poses")
+    columns = len(first.replace(",", " ").split())
+    if columns == 12:
+        try:
+            return read_kitti(path)
+        except ValueError as err:
+            if isinstance(err, TrajectoryFileError):
+                raise
+            raise TrajectoryFileError(_malformed_kitti_line(path)) from err
+    return read_tum(path)
+
+
+def _log_of(span_log: str | Path | SpanLog) -> SpanLog:
+    return span_log if isinstance(span_log, SpanLog) else read_span_log(span_log)
+
+
+def evaluate_against_span(
+    estimate: Trajectory,
+    span_log: str | Path | SpanLog,
+    *,
+    T_imu_lidar: np.ndarray | None = None,
+    config: GnssConfig | None = None,
+    align: AlignmentMode | str | None = None,
+    origin: GeodeticOrigin | None = None,
+    out_dir: str | Path | None = None,
+    trajectory_source: str = "",
+) -> SpanEvaluation:
+    """Evaluate ``estimate`` (lidar poses, bag clock) against the INS solutions of a SPAN log.
+
+    Args:
+        estimate: the lidar trajectory; any world frame for ``se3``/``yaw`` alignment, ENU at the
+            reference origin for ``none``.
+        span_log: a log path (ASCII, binary, raw stream, optionally gzipped) or a decoded log.
+        T_imu_lidar: lidar pose in the SPAN IMU frame (x right, y forward, z up); identity if None.
+        config: the ``gnss`` section (leap seconds, time offset, accepted INS statuses, max gap,
+            RPE lengths); defaults if None.
+        align: overrides ``config.align``.
+        origin: ENU origin; else ``config.origin``, else the first kept solution.
+        out_dir: when given, the JSON/CSV/PNG report is written there.
+
+    Raises :class:`~lidar3d.errors.GnssError` (unreadable log, no usable pose, INS never aligned),
+    :class:`~lidar3d.metrics.errors.EvaluationError` (no time overlap, too few associated poses).
+    """
+    config = config or GnssConfig()
+    mode = AlignmentMode.parse(align if align is not None else config.align)
+    config = dataclasses.replace(config, align=mode.value)
+    if origin is not None:  # recorded in the resolved settings, so the report can be reproduced
+        config = dataclasses.replace(
+            config, origin=(origin.latitude_deg, origin.longitude_deg, origin.height_ellipsoid_m)
+        )
+    log = _log_of(span_log)
+    reference = span_reference(log, config, origin_from_config(config.origin))
+    T = np.eye(4) if T_imu_lidar is None else np.asarray(T_imu_lidar, dtype=np.float64)
+    evaluation = evaluate_trajectory(
+        estimate,
+        reference.trajectory,
+        T_imu_lidar=T,
+        align=mode,
+        max_gap_s=config.max_association_gap_s,
+        rpe_segment_lengths_m=config.rpe_segment_lengths_m,
+        rpe_step_s=config.rpe_step_s,
+        rpe_distances_m=config.rpe_distances_m,
+    )
+    result = SpanEvaluation(
+        evaluation=evaluation,
+        reference=reference,
+        log=log,
+        T_imu_lidar=T,
+        config=config,
+        trajectory_source=trajectory_source,
+        span_source=log.source,
+    )
+    if out_dir is not None:
+        from lidar3d.metrics.report import write_report
+
+        files = write_report(result, out_dir)
+        result = dataclasses.replace(result, report_files=tuple(files))
+    logger.debug(
+        "ATE %s: rmse %.3f m over %d poses", mode.value, evaluation.ate.translation_3d_m.rmse, evaluation.n_associated
+    )
+    return result
+
+
+def evaluate_span_files(
+    trajectory_path: str | Path,
+    span_path: str | Path,
+    out_dir: str | Path | None = None,
+    *,
+    extrinsics_path: str | Path | None = None,
+    align: AlignmentMode | str | None = None,
+    time_offset_s: float | None = None,
+    origin: GeodeticOrigin | None = None,
+    config: GnssConfig | None = None,
+) -> SpanEvaluation:
+    """``lidar3d eval TRAJECTORY --span LOG [--extrinsics FILE] [--align] [--time-offset] [--origin] --out DIR``.
+
+    ``time_offset_s`` and ``origin`` override the config's; see :func:`evaluate_against_span`.
+    """
+    from lidar3d.gnss.extrinsic import read_extrinsic
+
+    config = config or GnssConfig()
+    if time_offset_s is not None:
+        config = dataclasses.replace(config, time_offset_s=float(time_offset_s))
+    estimate = read_trajectory(trajectory_path)
+    T_imu_lidar = read_extrinsic(extrinsics_path) if extrinsics_path is not None else None
+    return evaluate_against_span(
+        estimate,
+        span_path,
+        T_imu_lidar=T_imu_lidar,
+        config=config,
+        align=align,
+        origin=origin,
+        out_dir=out_dir,
+        trajectory_source=str(trajectory_path),
+    )
