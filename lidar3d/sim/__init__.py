@@ -1,0 +1,52 @@
+"""Simulated VLP-16 drives through procedural worlds, with exact ground truth and a SPAN-CPT log.
+
+Modules, one concept each:
+
+* :mod:`~lidar3d.sim.shapes`, :mod:`~lidar3d.sim.terrain`, :mod:`~lidar3d.sim.world`: the world as
+  one triangle mesh with an object id per triangle;
+* :mod:`~lidar3d.sim.trajectory`: vehicle motion along a street route, and revisit detection;
+* :mod:`~lidar3d.sim.scenarios`: the named scenarios;
+* :mod:`~lidar3d.sim.rig`: where the lidar and the antenna sit relative to the IMU;
+* :mod:`~lidar3d.sim.lidar`: the ray-cast sensor (per-column poses, noise, dropouts, intensity);
+* :mod:`~lidar3d.sim.span`: the NovAtel SPAN ASCII log;
+* :mod:`~lidar3d.sim.simulation`: everything put together, scans on demand;
+* :mod:`~lidar3d.sim.output`: the output folder and :func:`simulate`.
+
+Open3D is imported only when the first scan is ray cast.
+"""
+
+from lidar3d.sim.lidar import LidarParams, SimulatedScan
+from lidar3d.sim.output import BagFormat, SimulationOutputs, simulate, write_simulation
+from lidar3d.sim.rig import RigParams
+from lidar3d.sim.scenarios import DEFAULT_SCENARIO, SCENARIOS, Scenario, get_scenario
+from lidar3d.sim.simulation import DEFAULT_START_TIME_NS, Simulation
+from lidar3d.sim.span import GeoOrigin, SpanParams
+from lidar3d.sim.terrain import TerrainParams
+from lidar3d.sim.trajectory import RevisitPair, RouteParams
+from lidar3d.sim.world import BlockKind, ObjectClass, StreetLayout, World, WorldParams
+
+__all__ = [
+    "Simulation",
+    "SimulatedScan",
+    "simulate",
+    "write_simulation",
+    "SimulationOutputs",
+    "BagFormat",
+    "Scenario",
+    "SCENARIOS",
+    "DEFAULT_SCENARIO",
+    "get_scenario",
+    "LidarParams",
+    "SpanParams",
+    "GeoOrigin",
+    "RigParams",
+    "RouteParams",
+    "TerrainParams",
+    "WorldParams",
+    "StreetLayout",
+    "World",
+    "ObjectClass",
+    "BlockKind",
+    "RevisitPair",
+    "DEFAULT_START_TIME_NS",
+]

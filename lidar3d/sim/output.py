@@ -1,0 +1,260 @@
+"""Write a simulated drive into a folder, and :func:`simulate`, the library twin of ``lidar3d simulate``.
+
+Folder contents (every file written atomically; ``metadata.json`` last, so its presence marks a
+complete folder):
+
+===========================  ==========================================================================
+``scans.bag``                ROS1 bag, ``/velodyne_points`` (sensor_msgs/PointCloud2, velodyne layout,
+                             frame ``velodyne``, stamp = sweep start); ``scans/`` for ROS2 (a bag folder)
+``ground_truth_tum.txt``     true lidar pose at every scan stamp, TUM (world = local ENU at the origin)
+``novatel_span.log``         NovAtel SPAN-CPT ASCII: #INSPVAXA 20 Hz, #BESTPOSA 1 Hz, CRC-32, CR LF
+``extrinsics.toml``          ``T_imu_lidar`` (lidar pose in the SPAN vehicle frame)
+``metadata.json``            scenario, seed, sensor, counts, length, duration, origin, revisits, parameters
+===========================  ==========================================================================
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+from dataclasses import dataclass
+from enum import Enum
+from pathlib import Path
+
+import numpy as np
+
+from lidar3d.errors import OutputError, SimulationError
+from lidar3d.gnss.extrinsic import write_extrinsic
+from lidar3d.io.atomic import write_bytes_atomic, write_text_atomic
+from lidar3d.io.bag_writer import write_scan_bag
+from lidar3d.io.trajectory_io import write_tum
+from lidar3d.sensors import SensorModel
+from lidar3d.sim.lidar import LidarParams
+from lidar3d.sim.rig import RigParams
+from lidar3d.sim.scenarios import DEFAULT_SCENARIO, Scenario
+from lidar3d.sim.simulation import Simulation
+from lidar3d.sim.span import SpanParams
+from lidar3d.sim.trajectory import group_revisits
+
+__all__ = ["BagFormat", "SimulationOutputs", "write_simulation", "simulate", "OUTPUT_NAMES"]
+
+logger = logging.getLogger(__name__)
+
+TOPIC = "/velodyne_points"
+FRAME_ID = "velodyne"
+OUTPUT_NAMES = {
+    "ground_truth": "ground_truth_tum.txt",
+    "span_log": "novatel_span.log",
+    "extrinsics": "extrinsics.toml",
+    "metadata": "metadata.json",
+}
+
+
+class BagFormat(str, Enum):
+    """Bag flavours: ``ros2`` is ROS2 with the sqlite3 storage."""
+
+    ROS1 = "ros1"
+    ROS2 = "ros2"
+    ROS2_MCAP = "ros2-mcap"
+
+    @property
+    def storage(self) -> str:
+        return {"ros1": "ros1", "ros2": "ros2-sqlite3", "ros2-mcap": "ros2-mcap"}[self.value]
+
+    @property
+    def file_name(self) -> str:
+        return "scans.bag" if self is BagFormat.ROS1 else "scans"
+
+
+@dataclass(frozen=True, slots=True)
+class SimulationOutputs:
+    """Paths of one simulation folder and a few numbers about it."""
+
+    out_dir: Path
+    bag: Path
+    ground_truth: Path
+    span_log: Path
+    extrinsics: Path
+    metadata: Path
+    n_scans: int
+    n_points: int
+
+
+def _jsonable(value):
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return {f.name: _jsonable(getattr(value, f.name)) for f in dataclasses.fields(value)}
+    if isinstance(value, (tuple, list)):
+        return [_jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.integer, np.floating)):
+        return value.item()
+    if isinstance(value, Enum):
+        return value.value
+    return value
+
+
+def _metadata(sim: Simulation, bag_format: BagFormat, n_points: int) -> dict:
+    gt = sim.ground_truth
+    t_s = (gt.stamps_ns - sim.start_time_ns) * 1e-9
+    speed = np.linalg.norm(sim.motion.velocity_at(t_s), axis=1)
+    events = group_revisits(sim.revisits())
+    origin = sim.span_params.origin
+    degraded = sim.degraded_gnss_span_ns()
+    return {
+        "format": "lidar3d-sim/1",
+        "scenario": sim.scenario.name,
+        "description": sim.scenario.description,
+        "seed": sim.seed,
+        "sensor": sim.sensor.name,
+        "n_scans": len(sim),
+        "n_points": n_points,
+        "scan_period_s": sim.scan_period_ns * 1e-9,
+        "first_stamp_ns": int(gt.stamps_ns[0]),
+        "last_stamp_ns": int(gt.stamps_ns[-1]),
+        "duration_s": sim.duration_s,
+        "path_length_m": gt.path_length_m,
+        "speed_mps": {"min": float(speed.min()), "mean": float(speed.mean()), "max": float(speed.max())},
+        "frames": {
+            "world": "local ENU (x east, y north, z up) at the geographic origin",
+            "lidar": "REP-105 (x forward, y left, z up), frame_id velodyne",
+            "imu": "SPAN vehicle frame (x right, y forward, z up)",
+        },
+        "origin": {
+            "latitude_deg": origin.latitude_deg,
+            "longitude_deg": origin.longitude_deg,
+            "height_ellipsoid_m": origin.height_m,
+            "undulation_m": origin.undulation_m,
+        },
+        "T_imu_lidar": sim.T_imu_lidar.tolist(),
+        "imu_to_antenna_m": list(sim.rig.imu_to_antenna_m),
+        "gnss": {
+            "leap_seconds": sim.span_params.leap_seconds,
+            "inspvax_rate_hz": sim.span_params.inspvax_rate_hz,
+            "bestpos_rate_hz": sim.span_params.bestpos_rate_hz,
+            "noise": sim.span_params.noise,
+            "degraded_start_ns": degraded[0],
+            "degraded_end_ns": degraded[1],
+            "bag_clock_minus_utc_s": 0.0,
+        },
+        "files": {
+            "bag": bag_format.file_name,
+            "bag_format": bag_format.value,
+            "topic": TOPIC,
+            "frame_id": FRAME_ID,
+            **OUTPUT_NAMES,
+        },
+        "revisits": [
+            {
+                "query_first": e[0].query_index,
+                "query_last": e[-1].query_index,
+                "match_first": e[0].match_index,
+                "min_distance_m": min(p.distance_m for p in e),
+                "pairs": [_jsonable(p) for p in e],
+            }
+            for e in events
+        ],
+        "world": {
+            "n_triangles": int(len(sim.world.triangles)),
+            "n_objects": sim.world.n_objects,
+            "block_kinds": sim.world.block_kind.tolist(),
+        },
+        "parameters": {
+            "scenario": _jsonable(sim.scenario),
+            "lidar": _jsonable(sim.lidar_params),
+            "span": _jsonable(sim.span_params),
+            "rig": _jsonable(sim.rig),
+            "start_time_ns": sim.start_time_ns,
+        },
+    }
+
+
+def write_simulation(
+    sim: Simulation,
+    out_dir: str | Path,
+    *,
+    bag_format: str | BagFormat = BagFormat.ROS1,
+    overwrite: bool = False,
+) -> SimulationOutputs:
+    """Generate every scan of ``sim`` and write the output folder.
+
+    Raises:
+        OutputError: the folder already holds a simulation and ``overwrite`` is false, or a file
+            cannot be written.
+        SimulationError: unknown bag format.
+    """
+    try:
+        fmt = BagFormat(bag_format)
+    except ValueError:
+        known = ", ".join(f.value for f in BagFormat)
+        raise SimulationError(f"unknown bag format {bag_format!r}; choose one of: {known}") from None
+    out = Path(out_dir)
+    paths = {key: out / name for key, name in OUTPUT_NAMES.items()}
+    bag = out / fmt.file_name
+    existing = [p for p in (*paths.values(), bag) if p.exists()]
+    if existing and not overwrite:
+        raise OutputError(
+            f"{out}: already holds simulation outputs ({existing[0].name}); pass overwrite to replace them"
+        )
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder")
+    n_points = 0
+
+    def counted():
+        nonlocal n_points
+        for simulated in sim.scans():
+            n_points += len(simulated.scan)
+            if simulated.index % 100 == 0:
+                logger.debug("scan %d / %d", simulated.index, len(sim))
+            yield simulated.scan
+
+    logger.info(
+        "simulating %s (seed %d, %s): %d scans over %.1f s",
+        sim.scenario.name,
+        sim.seed,
+        sim.sensor.name,
+        len(sim),
+        sim.duration_s,
+    )
+    write_scan_bag(bag, counted(), topic=TOPIC, frame_id=FRAME_ID, storage=fmt.storage, overwrite=overwrite)
+    write_tum(paths["ground_truth"], sim.ground_truth)
+    write_bytes_atomic(paths["span_log"], "".join(sim.span_log_lines()).encode("ascii"))
+    write_extrinsic(paths["extrinsics"], sim.T_imu_lidar)
+    metadata = _metadata(sim, fmt, n_points)
+    write_text_atomic(paths["metadata"], json.dumps(metadata, indent=1) + "\n")
+    logger.info("wrote %s (%d scans, %d points)", out, len(sim), n_points)
+    return SimulationOutputs(
+        out_dir=out,
+        bag=bag,
+        ground_truth=paths["ground_truth"],
+        span_log=paths["span_log"],
+        extrinsics=paths["extrinsics"],
+        metadata=paths["metadata"],
+        n_scans=len(sim),
+        n_points=n_points,
+    )
+
+
+def simulate(
+    scenario: str | Scenario = DEFAULT_SCENARIO,
+    out_dir: str | Path = "sim_output",
+    *,
+    seed: int = 0,
+    duration_s: float | None = None,
+    bag_format: str | BagFormat = BagFormat.ROS1,
+    sensor: str | SensorModel = "vlp16",
+    overwrite: bool = False,
+    lidar: LidarParams | None = None,
+    span: SpanParams | None = None,
+    rig: RigParams | None = None,
+) -> SimulationOutputs:
+    """Simulate ``scenario`` and write its folder; the library twin of ``lidar3d simulate``.
+
+    Example:
+        >>> outputs = simulate("loop", "out/loop", seed=0, duration_s=20.0)  # doctest: +SKIP
+        >>> outputs.bag
+        PosixPath('out/loop/scans.bag')
+    """
+    sim = Simulation(scenario, seed=seed, duration_s=duration_s, sensor=sensor, lidar=lidar, span=span, rig=rig)
+    return write_simulation(sim, out_dir, bag_format=bag_format, overwrite=overwrite)
