@@ -1,0 +1,25 @@
+"""Edge and planar features of a segmented scan (LeGO-LOAM featureAssociation), vectorised.
+
+One call for the whole front end: ``run_front_end(scan, config) -> FrontEndResult`` (segmentation,
+features, per-stage ms). Features only: ``extract_features(segmentation, config.features)``; step by
+step: ``compute_smoothness`` -> ``select_features``.
+"""
+
+from lidar3d.features.frontend import STAGES, FrontEndResult, extract_features, run_front_end
+from lidar3d.features.records import FeatureCloud, FeatureSet, Smoothness
+from lidar3d.features.selection import select_features, suppression_spans, voxel_centroids_per_ring
+from lidar3d.features.smoothness import compute_smoothness
+
+__all__ = [
+    "FeatureCloud",
+    "FeatureSet",
+    "Smoothness",
+    "FrontEndResult",
+    "STAGES",
+    "compute_smoothness",
+    "select_features",
+    "extract_features",
+    "run_front_end",
+    "suppression_spans",
+    "voxel_centroids_per_ring",
+]

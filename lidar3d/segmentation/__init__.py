@@ -1,0 +1,23 @@
+"""Range image, ground marking and clustering (LeGO-LOAM imageProjection), vectorised.
+
+One call: ``segment_scan(scan, config.segmentation, config.sensor) -> Segmentation``. Step by step:
+``project_scan`` -> ``mark_ground`` -> ``cluster_cells`` -> ``assemble_segmentation``.
+"""
+
+from lidar3d.segmentation.clustering import cluster_cells
+from lidar3d.segmentation.ground import R_base_lidar_from_mount, ground_row_count, mark_ground
+from lidar3d.segmentation.range_image import RangeImage, project_scan
+from lidar3d.segmentation.segment import Segmentation, assemble_segmentation, segment_scan, usable_rows
+
+__all__ = [
+    "RangeImage",
+    "Segmentation",
+    "project_scan",
+    "mark_ground",
+    "cluster_cells",
+    "assemble_segmentation",
+    "segment_scan",
+    "usable_rows",
+    "R_base_lidar_from_mount",
+    "ground_row_count",
+]

@@ -1,0 +1,228 @@
+"""``lidar3d features``: write what the front end sees (ground, clusters, outliers, features) as PCDs.
+
+Library twin: :func:`export_front_end`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import textwrap
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+OUTPUT_FILES = (
+    "ground.pcd",
+    "clusters.pcd",
+    "outliers.pcd",
+    "edge_sharp.pcd",
+    "edge_less_sharp.pcd",
+    "planar_flat.pcd",
+    "planar_less_flat.pcd",
+)
+
+
+def _scan_range(text: str) -> tuple[int, int | None]:
+    """Parse ``A:B`` (either side may be empty) into a half-open index range."""
+    start_text, sep, stop_text = text.partition(":")
+    try:
+        if not sep:
+            raise ValueError
+        start = int(start_text) if start_text.strip() else 0
+        stop = int(stop_text) if stop_text.strip() else None
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected A:B (scan indices, either may be empty), got {text!r}") from None
+    if start < 0 or (stop is not None and stop <= start):
+        raise argparse.ArgumentTypeError(f"expected 0 <= A < B, got {text!r}")
+    return start, stop
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "features",
+        help="write the front end's ground, clusters, outliers and edge/planar features per scan as PCD",
+        description=textwrap.fill(
+            "Run the front end (range image, ground, clusters, edge/planar features) on the scans of a "
+            "bag and write, per scan, a folder scan_NNNNNN/ (N = index of the scan in the bag) holding "
+            + ", ".join(OUTPUT_FILES)
+            + ", all in the lidar frame, and the configuration in force as config.toml. Prints the "
+            "median time per sub-stage in ms per scan.",
+            width=88,
+        ),
+        epilog="example:\n  lidar3d features run.bag --out fe --scans 100:110\n  pcl_viewer fe/scan_000100/*.pcd",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s) or ROS2 bag folder")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    parser.add_argument(
+        "--scans", type=_scan_range, default=(0, None), metavar="A:B",
+        help="scan indices A (inclusive) to B (exclusive); default: all",
+    )
+    parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one)")
+    parser.add_argument("--config", metavar="FILE", help="TOML configuration file")
+    parser.set_defaults(func=run)
+
+
+@dataclass(frozen=True, slots=True)
+class FeaturesExportSummary:
+    """What :func:`export_front_end` did.
+
+    Attributes:
+        scan_indices: index in the bag of each scan written.
+        median_stage_ms: median wall time per sub-stage over those scans (ms per scan).
+        median_total_ms: median of the per-scan total.
+    """
+
+    scan_indices: tuple[int, ...]
+    median_stage_ms: dict[str, float]
+    median_total_ms: float
+
+
+def _write_cloud(path: Path, points, **fields) -> None:
+    """A binary PCD; a header-only one for an empty cloud (Open3D refuses to write those)."""
+    import numpy as np
+
+    from lidar3d.io.atomic import write_text_atomic
+    from lidar3d.io.pcd import write_pcd
+
+    if len(points):
+        write_pcd(path, points, **fields)
+        return
+    names = ["x", "y", "z", *fields]
+    types = ["F", "F", "F"] + ["I" if np.issubdtype(np.asarray(v).dtype, np.integer) else "F" for v in fields.values()]
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        f"FIELDS {' '.join(names)}\nSIZE {' '.join('4' for _ in names)}\nTYPE {' '.join(types)}\n"
+        f"COUNT {' '.join('1' for _ in names)}\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n"
+    )
+    write_text_atomic(path, header)
+
+
+def _write_scan_folder(folder: Path, result) -> None:
+    """Write the seven clouds of one scan into ``folder`` (built beside it, then renamed)."""
+    import os
+    import shutil
+    import tempfile
+
+    import numpy as np
+
+    from lidar3d.errors import OutputError
+
+    segmentation, features = result.segmentation, result.features
+    image = segmentation.image
+    points = segmentation.scan.points
+    ground_cells = image.point_index[segmentation.ground_mask]
+    cluster_cells = segmentation.cluster_label >= 0
+    outlier_cells = image.point_index[segmentation.outlier_mask]
+    try:
+        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=folder.parent))
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(staging, 0o777 & ~umask)  # mkdtemp makes it private; the result is an ordinary folder
+    except OSError as err:
+        raise OutputError(f"{folder}: cannot create a folder beside it: {err.strerror}") from err
+    try:
+        _write_cloud(staging / "ground.pcd", points[ground_cells])
+        _write_cloud(
+            staging / "clusters.pcd",
+            points[image.point_index[cluster_cells]],
+            label=segmentation.cluster_label[cluster_cells].astype(np.int32),
+        )
+        _write_cloud(staging / "outliers.pcd", points[outlier_cells])
+        for name, cloud in (
+            ("edge_sharp.pcd", features.sharp),
+            ("edge_less_sharp.pcd", features.less_sharp),
+            ("planar_flat.pcd", features.flat),
+            ("planar_less_flat.pcd", features.less_flat),
+        ):
+            _write_cloud(staging / name, cloud.points, ring=cloud.ring.astype(np.int32))
+        if folder.exists():
+            shutil.rmtree(folder)
+        os.replace(staging, folder)
+    except OSError as err:
+        raise OutputError(f"{folder}: cannot write: {err}") from err
+    finally:
+        if staging.exists():
+            shutil.rmtree(staging, ignore_errors=True)
+
+
+def export_front_end(
+    bags: Sequence[str | Path],
+    out_dir: str | Path,
+    *,
+    scans: tuple[int, int | None] = (0, None),
+    config=None,
+) -> FeaturesExportSummary:
+    """Run the front end on scans ``scans[0]`` to ``scans[1]`` (exclusive) of ``bags``; write PCDs.
+
+    Writes ``out_dir/config.toml`` (the configuration in force) and ``out_dir/scan_NNNNNN/`` per scan.
+    ``config`` is a :class:`lidar3d.config.Config` (defaults when None); ``config.input.topic``
+    picks the topic.
+
+    Raises:
+        BagError: the bag cannot be read or has no (or an ambiguous) lidar topic.
+        OutputError: an output cannot be written.
+    """
+    import numpy as np
+
+    from lidar3d.config import Config, config_to_toml
+    from lidar3d.errors import PointCloudError
+    from lidar3d.features import STAGES, run_front_end
+    from lidar3d.io.atomic import write_text_atomic
+    from lidar3d.io.bag_reader import open_scan_source
+    from lidar3d.io.pointcloud2 import decode_parts
+
+    config = config or Config()
+    out_dir = Path(out_dir)
+    start, stop = scans
+    write_text_atomic(out_dir / "config.toml", config_to_toml(config))
+    written: list[int] = []
+    timings: list[dict[str, float]] = []
+    n_seen = 0
+    with open_scan_source(bags, config) as source:
+        for index, parts in enumerate(source.clouds()):
+            n_seen = index + 1
+            if stop is not None and index >= stop:
+                break
+            if index < start:
+                continue  # not decoded: skipping is cheap
+            try:
+                scan, _ = decode_parts(parts, sensor=source.sensor, min_range_m=source.min_range_m)
+            except PointCloudError as err:
+                raise PointCloudError(f"{source.label}: {source.topic} at stamp {parts.stamp_ns} ns: {err}") from err
+            result = run_front_end(scan, config)
+            _write_scan_folder(out_dir / f"scan_{index:06d}", result)
+            written.append(index)
+            timings.append(result.stage_ms)
+            log.debug("scan %d: %.1f ms, %d sharp, %d flat", index, result.total_ms,
+                      len(result.features.sharp), len(result.features.flat))
+    if not written:
+        log.warning("no scan in the range %d:%s (%d scan(s) read)", start, "" if stop is None else stop, n_seen)
+        return FeaturesExportSummary(scan_indices=(), median_stage_ms=dict.fromkeys(STAGES, 0.0), median_total_ms=0.0)
+    median = {stage: float(np.median([t[stage] for t in timings])) for stage in STAGES}
+    total = float(np.median([sum(t.values()) for t in timings]))
+    return FeaturesExportSummary(scan_indices=tuple(written), median_stage_ms=median, median_total_ms=total)
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from lidar3d.config import load_config
+
+    config = load_config(args.config)
+    if args.topic:
+        config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
+    summary = export_front_end(args.bags, args.out, scans=args.scans, config=config)
+    if not summary.scan_indices:
+        print(f"no scan written to {args.out}")
+        return 0
+    first, last = summary.scan_indices[0], summary.scan_indices[-1]
+    print(f"wrote {len(summary.scan_indices)} scan folder(s) scan_{first:06d}..scan_{last:06d} to {args.out}")
+    print("median ms per scan:")
+    for stage, ms in summary.median_stage_ms.items():
+        print(f"  {stage:<12} {ms:8.2f}")
+    print(f"  {'total':<12} {summary.median_total_ms:8.2f}")
+    return 0

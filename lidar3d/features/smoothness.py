@@ -1,0 +1,82 @@
+"""Curvature ("smoothness") of the segmented cloud and rejection of unreliable points.
+
+LeGO-LOAM featureAssociation, vectorised over the whole segmented cloud:
+
+* curvature (FA:621-641): c_i = (sum_{0<|j-i|<=w} r_j - 2w r_i)^2 with w = 5, the unnormalised form
+  of LeGO-LOAM's code (paper Eq. 1 divides by |S| r_i); thresholds are therefore in m^2;
+* occlusion (FA:643-669): for consecutive points of a ring less than ``neighbour_max_column_gap``
+  columns apart whose ranges differ by more than ``occlusion_depth_m``, the w+1 points on the far
+  side of the step nearest to it are rejected (i-w..i when i is farther, i+1..i+w+1 when i+1 is);
+* beam-parallel surfaces (FA:671-676): point i is rejected when both |r_{i-1} - r_i| and
+  |r_{i+1} - r_i| exceed ``parallel_beam_ratio`` * r_i.
+
+Curvature windows and occlusion pairs stay inside one ring (LeGO-LOAM's indices run over the whole
+cloud, but only points w away from the ring ends are ever picked, so this changes nothing there).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidar3d.config import FeatureConfig
+from lidar3d.errors import ConfigError
+from lidar3d.features.records import Smoothness
+from lidar3d.segmentation.segment import Segmentation
+
+__all__ = ["compute_smoothness"]
+
+
+def _check(config: FeatureConfig) -> None:
+    if config.curvature_half_window < 1:
+        raise ConfigError(f"config features.curvature_half_window: must be >= 1, got {config.curvature_half_window}")
+    if config.sections_per_ring < 1:
+        raise ConfigError(f"config features.sections_per_ring: must be >= 1, got {config.sections_per_ring}")
+
+
+def compute_smoothness(segmentation: Segmentation, config: FeatureConfig) -> Smoothness:
+    """Curvature, ring sections and pickable flags of every point of the segmented cloud."""
+    _check(config)
+    range_m = segmentation.range_m
+    n = range_m.shape[0]
+    w = config.curvature_half_window
+    if n == 0:
+        none = np.zeros(0, dtype=np.int64)
+        return Smoothness(curvature=np.zeros(0), in_section=none.astype(bool), section=none, pickable=none.astype(bool))
+    row = segmentation.row
+    index = np.arange(n)
+    first = segmentation.ring_start[row]  # first index of each point's ring
+    stop = segmentation.ring_end[row]  # one past its last
+    in_section = (index - first >= w) & (stop - 1 - index >= w)
+
+    prefix = np.concatenate(([0.0], np.cumsum(range_m)))
+    window_sum = prefix[np.minimum(index + w + 1, n)] - prefix[np.maximum(index - w, 0)]
+    curvature = np.where(in_section, (window_sum - (2 * w + 1) * range_m) ** 2, 0.0)
+
+    # sections: the ring's pickable span [first + w, stop - w) cut into equal point counts (FA:690-694)
+    span = np.maximum(stop - first - 2 * w, 1)
+    sections = config.sections_per_ring
+    section = np.where(in_section, row * sections + ((index - first - w) * sections) // span, -1)
+
+    # occlusion: pairs (i, i+1) in one ring, close in column, with a depth step
+    pair_ok = (row[1:] == row[:-1]) & (np.abs(np.diff(segmentation.column)) < config.neighbour_max_column_gap)
+    step = np.diff(range_m)  # r_{i+1} - r_i
+    far_then_near = np.zeros(n, dtype=np.int64)
+    near_then_far = np.zeros(n, dtype=np.int64)
+    far_then_near[:-1] = pair_ok & (-step > config.occlusion_depth_m)
+    near_then_far[:-1] = pair_ok & (step > config.occlusion_depth_m)
+    # point k is rejected by an event i with k in [i - w, i] (far_then_near) or [i + 1, i + w + 1]
+    count_ftn = np.concatenate(([0], np.cumsum(far_then_near)))
+    count_ntf = np.concatenate(([0], np.cumsum(near_then_far)))
+    occluded = (count_ftn[np.minimum(index + w + 1, n)] - count_ftn[index]) > 0
+    occluded |= (count_ntf[index] - count_ntf[np.maximum(index - w - 1, 0)]) > 0
+
+    # beam nearly parallel to the surface: big range jumps on both sides
+    jump_prev = np.full(n, np.inf)
+    jump_next = np.full(n, np.inf)
+    jump_prev[1:] = np.abs(step)
+    jump_next[:-1] = np.abs(step)
+    limit = config.parallel_beam_ratio * range_m
+    parallel = (jump_prev > limit) & (jump_next > limit)
+
+    pickable = in_section & ~occluded & ~parallel
+    return Smoothness(curvature=curvature, in_section=in_section, section=section, pickable=pickable)

@@ -1,0 +1,99 @@
+"""Clustering of the non-ground cells of the range image (LeGO-LOAM imageProjection, IP:370-460).
+
+Two 4-neighbour cells (horizontal neighbours wrap around the sweep) belong to one object when the
+angle beta between the beam to the farther point and the line joining the two points exceeds
+``cluster_angle_deg`` (Bogoslavskyi & Stachniss; LeGO-LOAM ``segmentTheta``):
+
+    beta = atan2(d2 sin(alpha), d1 - d2 cos(alpha)),  d1 = max range, d2 = min range,
+
+with alpha the angle between the two beams: the column width for horizontal neighbours, the
+difference of the two rows' beam elevations for vertical ones (LeGO-LOAM uses the uniform 2 degree
+spacing; the table handles non-uniform sensors such as the VLP-32C). LeGO-LOAM grows each cluster by
+breadth-first search; here the joining test runs on the whole image at once and the clusters are the
+connected components of the resulting graph (``scipy.sparse.csgraph``). A cluster is kept when it has
+at least ``min_cluster_points`` points, or at least ``min_cluster_points_multi_ring`` points on at
+least ``min_cluster_rings`` rows (IP:430-450); the others are outliers.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import connected_components
+
+from lidar3d.config import SegmentationConfig
+from lidar3d.errors import ConfigError
+from lidar3d.segmentation.range_image import RangeImage
+
+__all__ = ["cluster_cells", "joins_by_beta"]
+
+
+def joins_by_beta(near_m: np.ndarray, far_m: np.ndarray, alpha_rad: np.ndarray | float, tan_theta: float) -> np.ndarray:
+    """beta > theta for 0 < theta < 90 deg, written without the arctangent.
+
+    With s = d2 sin(alpha) > 0, beta = atan2(s, d1 - d2 cos(alpha)) exceeds theta exactly when
+    s > tan(theta) * (d1 - d2 cos(alpha)) (a non-positive denominator means beta >= 90 deg).
+    NaN ranges (empty cells) compare False.
+    """
+    with np.errstate(invalid="ignore"):
+        return near_m * np.sin(alpha_rad) > tan_theta * (far_m - near_m * np.cos(alpha_rad))
+
+
+def cluster_cells(
+    image: RangeImage, ground_mask: np.ndarray, config: SegmentationConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """Cluster the occupied non-ground cells of ``image``.
+
+    Returns:
+        label: (R, C) int32, cluster id ``0 .. K-1`` of each cell of a kept cluster, numbered in
+            row-major order of each cluster's first cell; -1 elsewhere (empty, ground, outlier).
+        outlier_mask: (R, C) bool, cells of clusters too small to keep.
+    """
+    if not 0.0 < config.cluster_angle_deg < 90.0:
+        raise ConfigError(f"config segmentation.cluster_angle_deg: must be in (0, 90), got {config.cluster_angle_deg}")
+    n_rows, n_columns = image.shape
+    candidate = image.occupied & ~ground_mask
+    range_m = np.where(candidate, image.range_m, np.nan)
+    tan_theta = np.tan(np.deg2rad(config.cluster_angle_deg))
+    node = np.arange(n_rows * n_columns).reshape(n_rows, n_columns)
+
+    right_m = np.roll(range_m, -1, axis=1)  # horizontal neighbour, wrapping at the last column
+    horizontal = joins_by_beta(np.fmin(range_m, right_m), np.fmax(range_m, right_m), image.azimuth_resolution_rad, tan_theta)
+    up_m = range_m[1:]
+    alpha_rows = np.abs(np.diff(image.row_elevation_rad))[:, None]  # (R-1, 1)
+    vertical = joins_by_beta(np.fmin(range_m[:-1], up_m), np.fmax(range_m[:-1], up_m), alpha_rows, tan_theta)
+    # fmin/fmax return the other operand where one is NaN, so re-exclude pairs with an empty cell
+    horizontal &= candidate & np.roll(candidate, -1, axis=1)
+    vertical &= candidate[:-1] & candidate[1:]
+
+    source = np.concatenate([node[horizontal], node[:-1][vertical]])
+    target = np.concatenate([np.roll(node, -1, axis=1)[horizontal], node[1:][vertical]])
+    n_nodes = n_rows * n_columns
+    graph = csr_matrix((np.ones(source.size, dtype=np.int8), (source, target)), shape=(n_nodes, n_nodes))
+    _, component = connected_components(graph, directed=False)
+
+    cells = np.flatnonzero(candidate.ravel())
+    label = np.full(n_nodes, -1, dtype=np.int32)
+    outlier = np.zeros(n_nodes, dtype=bool)
+    if cells.size == 0:
+        return label.reshape(n_rows, n_columns), outlier.reshape(n_rows, n_columns)
+    # renumber the components of candidate cells densely, in row-major order of first appearance
+    # (connected_components numbers components by their lowest node, i.e. row-major first cell)
+    cell_component = component[cells]
+    present = np.zeros(n_nodes, dtype=bool)
+    present[cell_component] = True
+    dense_of_component = np.cumsum(present) - 1
+    dense = dense_of_component[cell_component]
+    n_clusters = int(dense_of_component[-1]) + 1
+    size = np.bincount(dense, minlength=n_clusters)
+    touched = np.zeros((n_clusters, n_rows), dtype=bool)
+    touched[dense, cells // n_columns] = True
+    n_rings = touched.sum(axis=1)
+    keep = (size >= config.min_cluster_points) | (
+        (size >= config.min_cluster_points_multi_ring) & (n_rings >= config.min_cluster_rings)
+    )
+    new_id = np.full(n_clusters, -1, dtype=np.int32)
+    new_id[keep] = np.arange(int(keep.sum()), dtype=np.int32)
+    label[cells] = new_id[dense]
+    outlier[cells] = ~keep[dense]
+    return label.reshape(n_rows, n_columns), outlier.reshape(n_rows, n_columns)
