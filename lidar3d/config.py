@@ -79,9 +79,10 @@ class SegmentationConfig:
     ground_angle_threshold_deg: float = 10.0
     ground_continuity: bool = True  # false: LeGO-LOAM's pairwise angle test alone
     ground_max_angle_change_deg: float = 5.0  # continuity: slope change between stacked pairs
-    ground_height_slope_deg: float = 5.0  # continuity: a ground run starting above an object must lie
-    ground_height_margin_m: float = 0.2  # within margin + distance * tan(slope) of the scan's ground level
+    ground_height_slope_deg: float = 5.0  # continuity: a column's first run starts within margin +
+    ground_height_margin_m: float = 0.2  # distance * tan(slope) of the scan's ground level
     ground_support_margin_m: float = 0.04  # contact: ground this close to its run's line stays ground
+    ground_noise_m: float = 0.05  # continuity: height steps this small pass whatever their angle
     cluster_angle_deg: float = 60.0  # segmentTheta
     min_cluster_points: int = 30
     min_cluster_points_multi_ring: int = 5  # segmentValidPointNum
@@ -126,7 +127,8 @@ class MappingConfig:
     """Scan-to-submap refinement and keyframes (LeGO-LOAM mapOptmization, LIO-SAM keyframe rule)."""
 
     corner_voxel_m: float = 0.2
-    surf_voxel_m: float = 0.4
+    surf_voxel_m: float = 0.4  # keyframe and submap surface clouds
+    scan_surf_voxel_m: float = 0.8  # the current scan's surface points matched against the submap
     max_iterations: int = 10
     min_rows: int = 50
     degeneracy_threshold: float = 100.0

@@ -1,0 +1,85 @@
+"""``lidar3d run``: SLAM over a recording."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    parser = subparsers.add_parser(
+        "run",
+        help="run SLAM on VLP-16 bag(s): trajectory of every scan and a dense map",
+        description=(
+            "Run LeGO-LOAM-style SLAM over one recording (several ROS1 split files read as one "
+            "stream). Writes trajectories (TUM, KITTI), map.pcd, summary.json and config.toml."
+        ),
+        epilog=(
+            "examples:\n"
+            "  lidar3d run drive.bag --out results/drive\n"
+            "  lidar3d run drive_0.bag drive_1.bag --out results/drive --span span.log --extrinsics extrinsics.toml\n"
+            "  lidar3d run rosbag2_folder --out results/r2 --topic /velodyne_points --max-scans 500"
+        ),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s) or ROS2 bag folder")
+    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one)")
+    parser.add_argument("--config", metavar="FILE", help="TOML configuration (see 'lidar3d config')")
+    parser.add_argument("--start", type=int, default=0, metavar="N", help="skip the first N scans")
+    parser.add_argument("--max-scans", type=int, metavar="N", help="process at most N scans")
+    parser.add_argument("--map-voxel", type=float, metavar="M", help="voxel size of map.pcd in metres")
+    parser.add_argument("--span", metavar="LOG", help="NovAtel SPAN log: evaluate the trajectory against it")
+    parser.add_argument("--extrinsics", metavar="FILE", help="lidar-to-IMU extrinsic for --span (TOML/YAML)")
+    parser.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    import dataclasses
+
+    from lidar3d.cli.progress import Progress
+    from lidar3d.config import load_config
+    from lidar3d.errors import ConfigError
+    from lidar3d.run import run_bag
+
+    config = load_config(args.config)
+    if args.topic:
+        config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
+    if args.map_voxel is not None:
+        if args.map_voxel <= 0:
+            raise ConfigError(f"--map-voxel must be positive, got {args.map_voxel}")
+        config = dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, map_voxel_m=args.map_voxel))
+    if args.start < 0 or (args.max_scans is not None and args.max_scans <= 0):
+        raise ConfigError("--start must be >= 0 and --max-scans > 0")
+    if args.extrinsics and not args.span:
+        raise ConfigError("--extrinsics needs --span")
+    progress = Progress(None, "run")
+
+    def on_scan(done: int, total: int | None) -> None:
+        progress.total = total
+        progress.update(done)
+
+    try:
+        outcome = run_bag(
+            args.bags,
+            args.out,
+            config,
+            start=args.start,
+            max_scans=args.max_scans,
+            span_log=args.span,
+            extrinsics=args.extrinsics,
+            on_scan=on_scan,
+        )
+    finally:
+        if progress.done:
+            progress.close()
+    s = outcome.summary
+    print(
+        f"{s['scans']} scans, {s['length_m']:.1f} m, {s['runtime_s']:.1f} s ({s['scans_per_s']:.1f} scans/s), "
+        f"{s['keyframes']} keyframes, {s['map_points']} map points"
+    )
+    for warning in s["warnings"]:
+        print(f"warning: {warning}")
+    if "evaluation" in s:
+        print(s["evaluation"]["table"])
+    print(f"outputs in {outcome.out_dir}/")
+    return 0

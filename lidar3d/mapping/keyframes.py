@@ -1,0 +1,146 @@
+"""Keyframes and the bounded submap they form for scan-to-submap registration."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidar3d.mapping.registration import LineMap, PlaneMap
+from lidar3d.mapping.se3 import transform_points
+from lidar3d.mapping.voxel import voxel_downsample
+
+__all__ = ["Keyframe", "SubmapTarget", "Submap"]
+
+
+@dataclass(frozen=True, slots=True)
+class Keyframe:
+    """A scan kept for the map.
+
+    Attributes:
+        index: keyframe number (0, 1, ...).
+        scan_index: index of the scan in the input stream.
+        stamp_ns: scan stamp.
+        T_world_lidar: (4,4) pose at selection time (corrections live in the pose graph).
+        corner_points: (M,3) downsampled edge features, lidar frame.
+        surf_points: (K,3) downsampled planar features and outliers, lidar frame.
+    """
+
+    index: int
+    scan_index: int
+    stamp_ns: int
+    T_world_lidar: np.ndarray
+    corner_points: np.ndarray
+    surf_points: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class SubmapTarget:
+    """World-frame feature maps of the selected keyframes (None where a cloud is empty)."""
+
+    keyframe_indices: tuple[int, ...]
+    corners: LineMap | None
+    surfaces: PlaneMap | None
+
+
+class Submap:
+    """Selects keyframes around the current position and keeps their world clouds cached.
+
+    Selection: every keyframe within ``radius_m`` (horizontal distance) of the query position,
+    at most ``max_keyframes`` of them (the nearest first), always including the ``recent``
+    latest keyframes. World-frame clouds of keyframes are cached (at most ``cache_size``,
+    least recently used dropped); the cache is invalidated when poses are corrected.
+    """
+
+    def __init__(
+        self,
+        *,
+        radius_m: float,
+        max_keyframes: int,
+        recent: int,
+        corner_voxel_m: float,
+        surf_voxel_m: float,
+        cache_size: int = 400,
+    ) -> None:
+        self.radius_m = radius_m
+        self.max_keyframes = max_keyframes
+        self.recent = recent
+        self.corner_voxel_m = corner_voxel_m
+        self.surf_voxel_m = surf_voxel_m
+        self.cache_size = cache_size
+        self.keyframes: list[Keyframe] = []
+        self._poses: list[np.ndarray] = []
+        self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._target: SubmapTarget | None = None
+
+    def __len__(self) -> int:
+        return len(self.keyframes)
+
+    @property
+    def poses(self) -> np.ndarray:
+        """(K,4,4) current keyframe poses."""
+        return np.array(self._poses) if self._poses else np.zeros((0, 4, 4))
+
+    def add(self, keyframe: Keyframe) -> None:
+        self.keyframes.append(keyframe)
+        self._poses.append(np.array(keyframe.T_world_lidar))
+        self._target = None
+
+    def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
+        """Replace keyframe ``k``'s clouds (e.g. once a better deskewing motion is known)."""
+        old = self.keyframes[k]
+        self.keyframes[k] = Keyframe(old.index, old.scan_index, old.stamp_ns, old.T_world_lidar, corner_points, surf_points)
+        self._cache.pop(k, None)
+        self._target = None
+
+    def set_poses(self, poses: np.ndarray) -> None:
+        """Replace all keyframe poses (after a pose-graph correction) and drop the cache."""
+        if len(poses) != len(self.keyframes):
+            raise ValueError(f"expected {len(self.keyframes)} poses, got {len(poses)}")
+        self._poses = [np.array(p) for p in poses]
+        self._cache.clear()
+        self._target = None
+
+    def _world_clouds(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        cached = self._cache.get(k)
+        if cached is not None:
+            self._cache.move_to_end(k)
+            return cached
+        kf = self.keyframes[k]
+        T = self._poses[k]
+        clouds = (transform_points(T, kf.corner_points), transform_points(T, kf.surf_points))
+        self._cache[k] = clouds
+        if len(self._cache) > self.cache_size:
+            self._cache.popitem(last=False)
+        return clouds
+
+    def select(self, position_m: np.ndarray) -> tuple[int, ...]:
+        """Keyframe indices forming the submap around ``position_m``."""
+        n = len(self.keyframes)
+        if n == 0:
+            return ()
+        positions = np.array([p[:3, 3] for p in self._poses])
+        dist = np.linalg.norm(positions[:, :2] - position_m[:2], axis=1)
+        near = np.flatnonzero(dist <= self.radius_m)
+        near = near[np.argsort(dist[near], kind="stable")][: self.max_keyframes]
+        recent = np.arange(max(0, n - self.recent), n)
+        return tuple(sorted(set(near.tolist()) | set(recent.tolist())))
+
+    def target(self, position_m: np.ndarray) -> SubmapTarget:
+        """The submap around ``position_m`` (rebuilt only when the selection changes)."""
+        selection = self.select(position_m)
+        if self._target is not None and self._target.keyframe_indices == selection:
+            return self._target
+        corners = [self._world_clouds(k)[0] for k in selection]
+        surfs = [self._world_clouds(k)[1] for k in selection]
+        corner = np.concatenate(corners) if corners else np.zeros((0, 3))
+        surf = np.concatenate(surfs) if surfs else np.zeros((0, 3))
+        corner = voxel_downsample(corner, self.corner_voxel_m)
+        surf = voxel_downsample(surf, self.surf_voxel_m)
+        self._target = SubmapTarget(
+            keyframe_indices=selection,
+            corners=LineMap(corner) if len(corner) else None,
+            surfaces=PlaneMap(surf) if len(surf) else None,
+        )
+        return self._target

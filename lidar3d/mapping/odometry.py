@@ -1,0 +1,113 @@
+"""Scan-to-scan odometry in LeGO-LOAM's two steps (featureAssociation.cpp 1270-1478, 1666-1695).
+
+1. The current scan's flat ground features are matched point-to-plane against the previous
+   scan's less-flat features; only z, roll and pitch are free.
+2. The current scan's sharp edge features are matched point-to-line against the previous scan's
+   less-sharp features; only x, y and yaw are free.
+
+Both clouds are deskewed to their stamps beforehand, so ``T_prev_curr`` relates the lidar at the
+previous stamp to the lidar at the current stamp. Correspondences use LOAM's ring-aware search
+(:mod:`lidar3d.mapping.ring_matching`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidar3d.features.records import FeatureSet
+from lidar3d.mapping.registration import solve_pose
+from lidar3d.mapping.ring_matching import RingIndexedCloud
+
+__all__ = ["OdometryStep", "ScanToScanOdometry"]
+
+PLANAR_AXES = (2, 3, 4)  # z, roll, pitch
+EDGE_AXES = (0, 1, 5)  # x, y, yaw
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryStep:
+    """Result of one scan-to-scan update.
+
+    Attributes:
+        T_prev_curr: (4,4) motion from the previous scan's stamp to this one's.
+        used_motion_model: True when features were too few and the guess was kept.
+        planar_rows / edge_rows: residual rows used by each step.
+    """
+
+    T_prev_curr: np.ndarray
+    used_motion_model: bool
+    planar_rows: int
+    edge_rows: int
+
+
+class ScanToScanOdometry:
+    """Keeps the previous scan's less-sharp and less-flat clouds and matches the next one."""
+
+    def __init__(
+        self,
+        *,
+        n_rings: int,
+        max_iterations: int = 25,
+        rematch_every: int = 5,
+        min_rows: int = 10,
+        degeneracy_threshold: float = 10.0,
+        search_radius_m: float = 5.0,
+        min_previous_edges: int = 10,
+        min_previous_planes: int = 100,
+    ) -> None:
+        self.n_rings = n_rings
+        self.max_iterations = max_iterations
+        self.rematch_every = rematch_every
+        self.min_rows = min_rows
+        self.degeneracy_threshold = degeneracy_threshold
+        self.search_radius_m = search_radius_m
+        self.min_previous_edges = min_previous_edges
+        self.min_previous_planes = min_previous_planes
+        self._prev_edges: RingIndexedCloud | None = None
+        self._prev_planes: RingIndexedCloud | None = None
+
+    def update(self, features: FeatureSet, T_prev_curr_guess: np.ndarray) -> OdometryStep:
+        """Estimate the motion since the previous scan, then remember this scan."""
+        step = OdometryStep(T_prev_curr_guess.copy(), True, 0, 0)
+        edges, planes = self._prev_edges, self._prev_planes
+        if (
+            edges is not None
+            and planes is not None
+            and len(edges) >= self.min_previous_edges
+            and len(planes) >= self.min_previous_planes
+        ):
+            step = self._match(features, T_prev_curr_guess, edges, planes)
+        self._prev_edges = RingIndexedCloud(features.less_sharp.points, features.less_sharp.ring, self.n_rings)
+        self._prev_planes = RingIndexedCloud(features.less_flat.points, features.less_flat.ring, self.n_rings)
+        return step
+
+    def _match(
+        self,
+        features: FeatureSet,
+        T_guess: np.ndarray,
+        edges: RingIndexedCloud,
+        planes: RingIndexedCloud,
+    ) -> OdometryStep:
+        radius = self.search_radius_m
+        common = dict(
+            max_iterations=self.max_iterations,
+            rematch_every=self.rematch_every,
+            min_rows=self.min_rows,
+            degeneracy_threshold=self.degeneracy_threshold,
+            converge_rotation_deg=0.1,
+            converge_translation_m=0.001,
+        )
+        planar = solve_pose(
+            T_guess, features.flat.points, lambda q: planes.match_planes(q, radius), free_axes=PLANAR_AXES, **common
+        )
+        edge = solve_pose(
+            planar.T_target_source,
+            features.sharp.points,
+            lambda q: edges.match_lines(q, radius),
+            free_axes=EDGE_AXES,
+            **common,
+        )
+        used_model = planar.iterations == 0 and edge.iterations == 0
+        return OdometryStep(edge.T_target_source, used_model, planar.n_rows, edge.n_rows)

@@ -1,0 +1,118 @@
+"""LOAM's ring-aware correspondences for scan-to-scan matching.
+
+A single sweep is sparse across rings and dense along them, so k nearest neighbours all fall on
+one ring and give no line or plane across rings. LOAM therefore builds each correspondence from
+the nearest point j plus points on chosen neighbouring rings (LeGO-LOAM featureAssociation.cpp
+1044-1268, search radius 5 m):
+
+* edge: j and the nearest point l on a *different* ring within +-2 rings of j -> line (j, l);
+* plane: j, the nearest point l on j's ring or one ring below, and the nearest point m on a
+  ring above -> plane (j, l, m).
+
+Each ring of the previous sweep gets its own k-d tree so both searches are batched queries.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+from lidar3d.mapping.registration import MatchRows, line_rows_from_directions
+
+__all__ = ["RingIndexedCloud"]
+
+
+class RingIndexedCloud:
+    """A feature cloud of one sweep with one k-d tree per ring and one over all points."""
+
+    def __init__(self, points: np.ndarray, ring: np.ndarray, n_rings: int) -> None:
+        self.points = np.asarray(points, dtype=np.float64)
+        self.ring = np.asarray(ring, dtype=np.int64)
+        self.n_rings = n_rings
+        self.tree = cKDTree(self.points) if len(self.points) else None
+        self._ring_points: list[np.ndarray | None] = []
+        self._ring_index: list[np.ndarray | None] = []
+        self._ring_trees: list[cKDTree | None] = []
+        for r in range(n_rings):
+            idx = np.flatnonzero(self.ring == r)
+            self._ring_index.append(idx)
+            self._ring_trees.append(cKDTree(self.points[idx]) if idx.size else None)
+
+    def __len__(self) -> int:
+        return int(self.points.shape[0])
+
+    def _nearest_on_rings(
+        self, queries: np.ndarray, ring_offsets: range, base_ring: np.ndarray, exclude: np.ndarray, max_dist: float
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Index and distance of the nearest point on rings base_ring + offsets (not ``exclude``)."""
+        best_idx = np.full(len(queries), -1, np.int64)
+        best_dist = np.full(len(queries), np.inf)
+        for offset in ring_offsets:
+            target_ring = base_ring + offset
+            for r in np.unique(target_ring):
+                if r < 0 or r >= self.n_rings or self._ring_trees[r] is None:
+                    continue
+                sel = np.flatnonzero(target_ring == r)
+                tree = self._ring_trees[r]
+                k = min(2, tree.n)
+                dist, idx = tree.query(queries[sel], k=k, distance_upper_bound=max_dist)
+                dist = dist.reshape(len(sel), k)
+                idx = idx.reshape(len(sel), k)
+                valid = np.isfinite(dist)
+                global_idx = np.where(valid, self._ring_index[r][np.minimum(idx, tree.n - 1)], -1)
+                not_self = global_idx != exclude[sel, None]
+                dist = np.where(valid & not_self, dist, np.inf)
+                pick = np.argmin(dist, axis=1)
+                d = dist[np.arange(len(sel)), pick]
+                g = global_idx[np.arange(len(sel)), pick]
+                better = d < best_dist[sel]
+                best_dist[sel[better]] = d[better]
+                best_idx[sel[better]] = g[better]
+        return best_idx, best_dist
+
+    def match_lines(self, queries: np.ndarray, max_dist_m: float = 5.0) -> MatchRows:
+        """Point-to-line rows for ``queries`` (already in this cloud's frame)."""
+        if self.tree is None or len(queries) == 0:
+            return MatchRows.empty()
+        dist, j = self.tree.query(queries, k=1, distance_upper_bound=max_dist_m)
+        ok = np.isfinite(dist)
+        q_idx = np.flatnonzero(ok)
+        if q_idx.size == 0:
+            return MatchRows.empty()
+        j = j[ok]
+        ring_j = self.ring[j]
+        l_lower, d_lower = self._nearest_on_rings(queries[q_idx], range(-2, 0), ring_j, j, max_dist_m)
+        l_upper, d_upper = self._nearest_on_rings(queries[q_idx], range(1, 3), ring_j, j, max_dist_m)
+        use_upper = d_upper < d_lower
+        l_idx = np.where(use_upper, l_upper, l_lower)
+        good = l_idx >= 0
+        pj = self.points[j[good]]
+        pl = self.points[l_idx[good]]
+        direction = pl - pj
+        length = np.linalg.norm(direction, axis=1)
+        keep = length > 1e-3
+        return line_rows_from_directions(q_idx[good][keep], pj[keep], direction[keep])
+
+    def match_planes(self, queries: np.ndarray, max_dist_m: float = 5.0) -> MatchRows:
+        """Point-to-plane rows for ``queries`` (already in this cloud's frame)."""
+        if self.tree is None or len(queries) == 0:
+            return MatchRows.empty()
+        dist, j = self.tree.query(queries, k=1, distance_upper_bound=max_dist_m)
+        ok = np.isfinite(dist)
+        q_idx = np.flatnonzero(ok)
+        if q_idx.size == 0:
+            return MatchRows.empty()
+        j = j[ok]
+        ring_j = self.ring[j]
+        l_idx, _ = self._nearest_on_rings(queries[q_idx], range(-1, 1), ring_j, j, max_dist_m)
+        m_idx, _ = self._nearest_on_rings(queries[q_idx], range(1, 3), ring_j, j, max_dist_m)
+        good = (l_idx >= 0) & (m_idx >= 0)
+        pj = self.points[j[good]]
+        pl = self.points[l_idx[good]]
+        pm = self.points[m_idx[good]]
+        normal = np.cross(pl - pj, pm - pj)
+        norm = np.linalg.norm(normal, axis=1)
+        keep = norm > 1e-6
+        normal = normal[keep] / norm[keep, None]
+        offset = -np.einsum("ij,ij->i", normal, pj[keep])
+        return MatchRows(q_idx[good][keep].astype(np.int64), normal, offset)

@@ -1,0 +1,52 @@
+"""Scan-to-submap refinement: 6-DoF point-to-line and point-to-plane against the submap.
+
+LeGO-LOAM mapOptmization.cpp 1093-1336: corners match lines and surfaces match planes fitted to
+5 nearby submap points (see :class:`~lidar3d.mapping.registration.LineMap` and
+:class:`~lidar3d.mapping.registration.PlaneMap`); at least 50 rows, Gauss-Newton with
+degeneracy threshold 100.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidar3d.config import MappingConfig
+from lidar3d.mapping.keyframes import SubmapTarget
+from lidar3d.mapping.registration import MatchRows, SolveResult, solve_pose
+
+__all__ = ["register_to_submap"]
+
+
+def register_to_submap(
+    target: SubmapTarget,
+    corner_lidar: np.ndarray,
+    surf_lidar: np.ndarray,
+    T_world_lidar_guess: np.ndarray,
+    config: MappingConfig,
+) -> SolveResult:
+    """Refine ``T_world_lidar`` of a scan whose features are given in its lidar frame."""
+    source = np.concatenate([corner_lidar, surf_lidar])
+    n_corner = len(corner_lidar)
+
+    def find_matches(q_world: np.ndarray) -> MatchRows:
+        parts = []
+        shifts = []
+        if target.corners is not None and n_corner:
+            parts.append(target.corners.rows(q_world[:n_corner]))
+            shifts.append(0)
+        if target.surfaces is not None and len(surf_lidar):
+            parts.append(target.surfaces.rows(q_world[n_corner:]))
+            shifts.append(n_corner)
+        return MatchRows.concatenate(parts, shifts)
+
+    return solve_pose(
+        T_world_lidar_guess,
+        source,
+        find_matches,
+        max_iterations=config.max_iterations,
+        min_rows=config.min_rows,
+        degeneracy_threshold=config.degeneracy_threshold,
+        converge_rotation_deg=config.converge_rotation_deg,
+        converge_translation_m=config.converge_translation_m,
+        robust_scale_m=config.robust_scale_m,
+    )

@@ -1,0 +1,157 @@
+"""SE(3) helpers on 4x4 float64 matrices: exponential/log maps, interpolation, point transforms.
+
+Twists are ordered (v, w): translation part first, rotation part second, in the frame noted by
+the caller. Formulas: Barfoot, "State Estimation for Robotics" (2017), eqs. 7.85-7.95.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+__all__ = [
+    "transform_points",
+    "invert",
+    "exp_se3",
+    "log_se3",
+    "so3_exp",
+    "interpolate_poses",
+    "pose_from_xyz_rpy",
+    "xyz_rpy_from_pose",
+    "exp_apply",
+]
+
+
+def transform_points(T: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply a 4x4 transform to (N,3) points."""
+    return points @ T[:3, :3].T + T[:3, 3]
+
+
+def invert(T: np.ndarray) -> np.ndarray:
+    """Inverse of a rigid transform (or a stack (...,4,4) of them)."""
+    R = T[..., :3, :3]
+    t = T[..., :3, 3]
+    out = np.zeros_like(T)
+    Rt = np.swapaxes(R, -1, -2)
+    out[..., :3, :3] = Rt
+    out[..., :3, 3] = -np.einsum("...ij,...j->...i", Rt, t)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def _skew(w: np.ndarray) -> np.ndarray:
+    """(...,3) -> (...,3,3) cross-product matrices."""
+    out = np.zeros(w.shape[:-1] + (3, 3))
+    out[..., 0, 1] = -w[..., 2]
+    out[..., 0, 2] = w[..., 1]
+    out[..., 1, 0] = w[..., 2]
+    out[..., 1, 2] = -w[..., 0]
+    out[..., 2, 0] = -w[..., 1]
+    out[..., 2, 1] = w[..., 0]
+    return out
+
+
+def so3_exp(w: np.ndarray) -> np.ndarray:
+    """Rodrigues' formula for a stack of rotation vectors (...,3) -> (...,3,3)."""
+    w = np.asarray(w, dtype=np.float64)
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = _skew(w)
+    small = theta < 1e-9
+    safe = np.where(small, 1.0, theta)
+    a = np.where(small, 1.0, np.sin(safe) / safe)
+    b = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + a * K + b * (K @ K)
+
+
+def _left_jacobian(w: np.ndarray) -> np.ndarray:
+    theta = np.linalg.norm(w, axis=-1)[..., None, None]
+    K = _skew(w)
+    small = theta < 1e-9
+    safe = np.where(small, 1.0, theta)
+    b = np.where(small, 0.5, (1.0 - np.cos(safe)) / safe**2)
+    c = np.where(small, 1.0 / 6.0, (safe - np.sin(safe)) / safe**3)
+    eye = np.broadcast_to(np.eye(3), K.shape)
+    return eye + b * K + c * (K @ K)
+
+
+def exp_se3(xi: np.ndarray) -> np.ndarray:
+    """Exponential map of twists (...,6) ordered (v, w) to transforms (...,4,4)."""
+    xi = np.asarray(xi, dtype=np.float64)
+    v = xi[..., :3]
+    w = xi[..., 3:]
+    out = np.zeros(xi.shape[:-1] + (4, 4))
+    out[..., :3, :3] = so3_exp(w)
+    out[..., :3, 3] = np.einsum("...ij,...j->...i", _left_jacobian(w), v)
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def log_se3(T: np.ndarray) -> np.ndarray:
+    """Logarithm of a single transform: twist (6,) ordered (v, w)."""
+    w = Rotation.from_matrix(T[:3, :3]).as_rotvec()
+    J = _left_jacobian(w)
+    v = np.linalg.solve(J, T[:3, 3])
+    return np.concatenate([v, w])
+
+
+def interpolate_poses(stamps_ns: np.ndarray, poses: np.ndarray, query_ns: np.ndarray) -> np.ndarray:
+    """Poses at ``query_ns`` by linear translation and spherical rotation interpolation.
+
+    Queries outside the stamps are clamped to the first/last pose.
+    """
+    stamps = np.asarray(stamps_ns, dtype=np.int64)
+    query = np.asarray(query_ns, dtype=np.int64)
+    if len(stamps) == 1:
+        return np.repeat(poses[:1], len(query), axis=0)
+    idx = np.clip(np.searchsorted(stamps, query, side="right") - 1, 0, len(stamps) - 2)
+    t0 = stamps[idx]
+    t1 = stamps[idx + 1]
+    alpha = np.clip((query - t0) / (t1 - t0), 0.0, 1.0)
+    R0 = poses[idx, :3, :3]
+    R1 = poses[idx + 1, :3, :3]
+    delta = Rotation.from_matrix(np.swapaxes(R0, 1, 2) @ R1).as_rotvec()
+    out = np.zeros((len(query), 4, 4))
+    out[:, :3, :3] = R0 @ so3_exp(delta * alpha[:, None])
+    out[:, :3, 3] = poses[idx, :3, 3] * (1 - alpha[:, None]) + poses[idx + 1, :3, 3] * alpha[:, None]
+    out[:, 3, 3] = 1.0
+    return out
+
+
+def pose_from_xyz_rpy(x: np.ndarray) -> np.ndarray:
+    """(6,) [x, y, z, roll, pitch, yaw] (rad, R = Rz(yaw) Ry(pitch) Rx(roll)) -> 4x4."""
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("xyz", x[3:6]).as_matrix()
+    T[:3, 3] = x[:3]
+    return T
+
+
+def xyz_rpy_from_pose(T: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`pose_from_xyz_rpy`."""
+    return np.concatenate([T[:3, 3], Rotation.from_matrix(T[:3, :3]).as_euler("xyz")])
+
+
+def exp_apply(xi: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply ``exp_se3(xi[i])`` to ``points[i]`` for every i without forming (N,4,4) matrices.
+
+    ``xi`` is (N,6) ordered (v, w); uses Rodrigues' formula on vectors, so it costs a handful of
+    (N,3) array operations (the deskewing hot path).
+    """
+    v = xi[:, :3]
+    w = xi[:, 3:]
+    theta = np.linalg.norm(w, axis=1)
+    small = theta < 1e-9
+    safe = np.where(small, 1.0, theta)
+    k = w / safe[:, None]
+    sin = np.sin(theta)[:, None]
+    cos = np.cos(theta)[:, None]
+    th = theta[:, None]
+    kxp = np.cross(k, points)
+    kdp = np.einsum("ij,ij->i", k, points)[:, None]
+    rotated = points * cos + kxp * sin + k * kdp * (1.0 - cos)
+    # Left Jacobian applied to v: J v = v + (1-cos)/theta (k x v) + (theta - sin)/theta (k x (k x v))
+    kxv = np.cross(k, v)
+    a = np.where(small[:, None], 0.0, (1.0 - cos) / np.where(small, 1.0, theta)[:, None])
+    b = np.where(small[:, None], 0.0, (th - sin) / np.where(small, 1.0, theta)[:, None])
+    translated = v + a * kxv + b * np.cross(k, kxv)
+    return rotated + translated

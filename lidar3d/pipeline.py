@@ -1,0 +1,361 @@
+"""The SLAM pipeline: drives the stages scan by scan and collects a :class:`SlamResult`.
+
+It writes nothing; adapters (the CLI) iterate it, show progress and publish outputs.
+
+Per scan:
+1. deskew the sweep to its stamp with the constant-velocity prediction;
+2. front end: range image, ground, clusters, edge/planar features;
+3. scan-to-scan odometry (two-step LM) from the motion-model guess;
+4. scan-to-submap refinement (6-DoF) from the odometry guess;
+5. keyframe selection by travelled distance and rotation;
+6. the sweep, deskewed again with the refined motion, is added to the dense voxel map.
+
+Each pose is the lidar pose at the scan's header stamp (see :mod:`lidar3d.mapping.deskew`).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import defaultdict
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from lidar3d.config import Config
+from lidar3d.mapping.deskew import deskew_features, deskew_points, deskew_scan, twist_between
+from lidar3d.mapping.keyframes import Keyframe, Submap
+from lidar3d.features.frontend import STAGES as FRONT_END_STAGES
+from lidar3d.features.frontend import run_front_end
+from lidar3d.features.records import FeatureCloud, FeatureSet
+from lidar3d.mapping.odometry import ScanToScanOdometry
+from lidar3d.mapping.scan_to_map import register_to_submap
+from lidar3d.mapping.se3 import exp_se3, invert, transform_points
+from lidar3d.mapping.voxel import VoxelMap, voxel_downsample
+from lidar3d.records import Scan, Trajectory
+
+__all__ = ["ScanEstimate", "SlamResult", "SlamPipeline", "run_slam", "STAGES"]
+
+log = logging.getLogger(__name__)
+
+STAGES = ("deskew", *FRONT_END_STAGES, "odometry", "mapping", "map_update")
+
+
+@dataclass(frozen=True, slots=True)
+class ScanEstimate:
+    """What the pipeline concluded for one scan.
+
+    Attributes:
+        scan_index: position of the scan in the input stream (dropped scans keep their number).
+        stamp_ns: scan stamp.
+        T_world_lidar: (4,4) refined lidar pose at the stamp.
+        T_world_odom: (4,4) scan-to-scan odometry pose at the stamp.
+        is_keyframe: the scan became a keyframe.
+        motion_model_only: features were too few, so the pose came from the motion model.
+    """
+
+    scan_index: int
+    stamp_ns: int
+    T_world_lidar: np.ndarray
+    T_world_odom: np.ndarray
+    is_keyframe: bool
+    motion_model_only: bool
+
+
+@dataclass(frozen=True, slots=True)
+class SlamResult:
+    """Everything a run produced.
+
+    Attributes:
+        trajectory: refined pose of every processed scan.
+        odometry: scan-to-scan odometry pose of every processed scan.
+        keyframes: keyframe poses (stamps of the keyframe scans).
+        keyframe_scan_indices: (K,) scan index of each keyframe.
+        map_points: (M,3) dense voxel map, world frame.
+        map_intensity: (M,) mean intensity per voxel.
+        timings_ms: stage name -> (N,) milliseconds per processed scan.
+        counts: named counters (scans, dropped stamps, motion-model scans, degenerate scans...).
+        warnings: human-readable warnings collected during the run.
+        partial: the run stopped before the end of the input.
+    """
+
+    trajectory: Trajectory
+    odometry: Trajectory
+    keyframes: Trajectory
+    keyframe_scan_indices: np.ndarray
+    map_points: np.ndarray
+    map_intensity: np.ndarray
+    timings_ms: dict[str, np.ndarray]
+    counts: dict[str, int]
+    warnings: tuple[str, ...] = field(default=())
+    partial: bool = False
+
+
+class SlamPipeline:
+    """Stateful driver: call :meth:`process` per scan, then :meth:`result`."""
+
+    def __init__(self, config: Config) -> None:
+        self.config = config
+        self.sensor = config.sensor.sensor
+        odo = config.odometry
+        self.odometry = ScanToScanOdometry(
+            n_rings=self.sensor.n_rings,
+            max_iterations=odo.max_iterations,
+            rematch_every=odo.rematch_every,
+            min_rows=odo.min_rows,
+            degeneracy_threshold=odo.degeneracy_threshold,
+            search_radius_m=odo.search_radius_m,
+            min_previous_edges=odo.min_previous_edges,
+            min_previous_planes=odo.min_previous_planes,
+        )
+        mp = config.mapping
+        self.submap = Submap(
+            radius_m=mp.submap_radius_m,
+            max_keyframes=mp.submap_max_keyframes,
+            recent=mp.submap_recent_keyframes,
+            corner_voxel_m=mp.corner_voxel_m,
+            surf_voxel_m=mp.surf_voxel_m,
+            cache_size=mp.submap_cache_keyframes,
+        )
+        self.dense_map = VoxelMap(mp.map_voxel_m)
+        self.estimates: list[ScanEstimate] = []
+        self.timings: dict[str, list[float]] = defaultdict(list)
+        self.counts: dict[str, int] = defaultdict(int)
+        self.warnings: list[str] = []
+        self._twist = np.zeros(6)
+        self._scan_index = -1
+        self._fallback_run_start: int | None = None
+        self._pending: _PendingScan | None = None
+
+    # -- driver -------------------------------------------------------------------------------
+
+    def process(self, scan: Scan) -> ScanEstimate | None:
+        """Estimate the pose of ``scan``; returns None when the scan is dropped (bad stamp)."""
+        self._scan_index += 1
+        index = self._scan_index
+        if self.estimates and scan.stamp_ns <= self.estimates[-1].stamp_ns:
+            kind = "duplicate" if scan.stamp_ns == self.estimates[-1].stamp_ns else "out-of-order"
+            self.counts[f"dropped_{kind.replace('-', '_')}_stamps"] += 1
+            log.warning("scan %d: %s stamp %d dropped", index, kind, scan.stamp_ns)
+            return None
+        timer = _StageTimer(self.timings)
+        front = run_front_end(scan, self.config)
+        for stage, ms in front.stage_ms.items():
+            self.timings[stage].append(ms)
+        raw = _RawFeatures(front.features, _ground_cloud(front.segmentation))
+
+        previous = self.estimates[-1] if self.estimates else None
+        dt_s = (scan.stamp_ns - previous.stamp_ns) * 1e-9 if previous else 0.0
+        predicted = self._twist
+        with timer("deskew"):
+            features = raw.deskewed(predicted)
+        with timer("odometry"):
+            step = self.odometry.update(features.features, exp_se3(self._twist * dt_s))
+        T_world_odom = previous.T_world_odom @ step.T_prev_curr if previous else np.eye(4)
+
+        with timer("mapping"):
+            T_world_lidar, motion_model_only = self._refine(raw, features, predicted, previous, step, dt_s)
+        self._track_fallback(index, motion_model_only)
+        if previous is not None:
+            self._twist = twist_between(previous.T_world_lidar, T_world_lidar, dt_s)
+
+        is_keyframe = self._is_keyframe(T_world_lidar)
+        with timer("map_update"):
+            # The sweep of the previous scan is deskewed for good now that the motion after it
+            # (forward difference) is known; this scan waits for the next one.
+            if self._pending is not None:
+                self._publish(self._pending, self._twist)
+            self._pending = _PendingScan(scan, raw, T_world_lidar, index, is_keyframe)
+            if is_keyframe and not len(self.submap):
+                self._publish_keyframe(self._pending, predicted)
+
+        estimate = ScanEstimate(index, scan.stamp_ns, T_world_lidar, T_world_odom, is_keyframe, motion_model_only)
+        self.estimates.append(estimate)
+        self.counts["scans"] += 1
+        return estimate
+
+    def _publish(self, pending: "_PendingScan", twist: np.ndarray) -> None:
+        """Add a finished scan to the dense map (and, if selected, to the keyframes)."""
+        if pending.is_keyframe and (not len(self.submap) or self.submap.keyframes[-1].scan_index != pending.index):
+            self._publish_keyframe(pending, twist)
+        elif pending.is_keyframe:
+            # The first keyframe was added at once (no motion known then); deskew it properly.
+            self.submap.replace_clouds(len(self.submap) - 1, *self._mapping_clouds(pending.raw.deskewed(twist)))
+        final = deskew_scan(pending.scan, twist)
+        keep = self._in_range(final.points)
+        self.dense_map.insert(transform_points(pending.T_world_lidar, final.points[keep]), final.intensity[keep])
+
+    def _publish_keyframe(self, pending: "_PendingScan", twist: np.ndarray) -> None:
+        corner, surf = self._mapping_clouds(pending.raw.deskewed(twist))
+        self.submap.add(
+            Keyframe(len(self.submap), pending.index, pending.scan.stamp_ns, pending.T_world_lidar, corner, surf)
+        )
+
+    def _mapping_clouds(self, features: "_RawFeatures") -> tuple[np.ndarray, np.ndarray]:
+        """Corner (less-sharp) and surface (less-flat, outliers, ground) clouds, voxel-downsampled."""
+        mp = self.config.mapping
+        f = features.features
+        corner = voxel_downsample(f.less_sharp.points, mp.corner_voxel_m)
+        surf = voxel_downsample(
+            np.concatenate([f.less_flat.points, f.outliers.points, features.ground.points]), mp.surf_voxel_m
+        )
+        return corner, surf
+
+    def _refine(
+        self,
+        raw: "_RawFeatures",
+        features: "_RawFeatures",
+        predicted: np.ndarray,
+        previous: ScanEstimate | None,
+        step,
+        dt_s: float,
+    ) -> tuple[np.ndarray, bool]:
+        """Scan-to-submap refinement; returns (T_world_lidar, motion_model_only).
+
+        When the refined motion changes the deskewing by more than ``redeskew_threshold_m`` over
+        the sweep, the features are deskewed again with it and registered once more.
+        """
+        if previous is None:
+            return np.eye(4), False
+        T_world_lidar = previous.T_world_lidar @ step.T_prev_curr
+        if not len(self.submap):
+            return T_world_lidar, step.used_motion_model
+        mp = self.config.mapping
+        target = self.submap.target(T_world_lidar[:3, 3])
+        used_twist = predicted
+        for _ in range(1 + mp.redeskew_passes):
+            corner, surf = self._mapping_clouds(features)
+            surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
+            refined = register_to_submap(target, corner, surf, T_world_lidar, mp)
+            if refined.iterations == 0:
+                return T_world_lidar, True
+            T_world_lidar = refined.T_target_source
+            twist = twist_between(previous.T_world_lidar, T_world_lidar, dt_s)
+            if np.linalg.norm((twist - used_twist)[:3]) * self.sensor.sweep_period_s < mp.redeskew_threshold_m:
+                break
+            features = raw.deskewed(twist)
+            used_twist = twist
+        if refined.degenerate_axes:
+            self.counts["degenerate_scans"] += 1
+        return T_world_lidar, False
+
+    def _in_range(self, points: np.ndarray) -> np.ndarray:
+        r = np.linalg.norm(points, axis=1)
+        return (r >= self.config.sensor.min_range_m) & (r <= self.sensor.max_range_m)
+
+    def _is_keyframe(self, T_world_lidar: np.ndarray) -> bool:
+        if not len(self.submap):
+            return True
+        last = self.submap.poses[-1]
+        delta = invert(last) @ T_world_lidar
+        moved = np.linalg.norm(delta[:3, 3])
+        angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
+        mp = self.config.mapping
+        return moved >= mp.keyframe_distance_m or angle >= mp.keyframe_angle_deg
+
+    def _track_fallback(self, index: int, motion_model_only: bool) -> None:
+        if motion_model_only:
+            self.counts["motion_model_scans"] += 1
+            if self._fallback_run_start is None:
+                self._fallback_run_start = index
+        elif self._fallback_run_start is not None:
+            self._close_fallback_run(index)
+
+    def _close_fallback_run(self, end_index: int) -> None:
+        start = self._fallback_run_start
+        self._fallback_run_start = None
+        message = f"scans {start}-{end_index - 1}: too few features, pose from the motion model"
+        self.warnings.append(message)
+        log.warning(message)
+
+    def result(self, partial: bool = False) -> SlamResult:
+        """The result so far (``partial`` marks an interrupted run)."""
+        if self._fallback_run_start is not None:
+            self._close_fallback_run(self._scan_index + 1)
+        if self._pending is not None:
+            self._publish(self._pending, self._twist)
+            self._pending = None
+        stamps = np.array([e.stamp_ns for e in self.estimates], dtype=np.int64)
+        poses = np.array([e.T_world_lidar for e in self.estimates]).reshape(-1, 4, 4)
+        odom = np.array([e.T_world_odom for e in self.estimates]).reshape(-1, 4, 4)
+        kf_index = np.array([kf.scan_index for kf in self.submap.keyframes], dtype=np.int64)
+        kf_stamps = np.array([kf.stamp_ns for kf in self.submap.keyframes], dtype=np.int64)
+        map_points, map_intensity = self.dense_map.points_and_intensity()
+        return SlamResult(
+            trajectory=Trajectory(stamps, poses),
+            odometry=Trajectory(stamps, odom),
+            keyframes=Trajectory(kf_stamps, self.submap.poses.reshape(-1, 4, 4)),
+            keyframe_scan_indices=kf_index,
+            map_points=map_points,
+            map_intensity=map_intensity,
+            timings_ms={k: np.asarray(v) for k, v in self.timings.items()},
+            counts=dict(self.counts),
+            warnings=tuple(self.warnings),
+            partial=partial,
+        )
+
+
+def _ground_cloud(segmentation) -> FeatureCloud:
+    """Every ground cell of the range image as a cloud (the segmented cloud keeps only every
+    fifth ground column; mapping wants the ground dense, since it fixes z, roll and pitch)."""
+    idx = segmentation.image.point_index[segmentation.ground_mask]
+    idx = idx[idx >= 0]
+    scan = segmentation.scan
+    return FeatureCloud(scan.points[idx], scan.ring[idx], scan.time_offset_s[idx])
+
+
+@dataclass(frozen=True, slots=True)
+class _RawFeatures:
+    """A scan's feature set plus its dense ground cloud, as fired (not deskewed)."""
+
+    features: FeatureSet
+    ground: FeatureCloud
+
+    def deskewed(self, twist: np.ndarray) -> "_RawFeatures":
+        ground = FeatureCloud(
+            deskew_points(self.ground.points, self.ground.time_offset_s, twist), self.ground.ring, self.ground.time_offset_s
+        )
+        return _RawFeatures(deskew_features(self.features, twist), ground)
+
+
+@dataclass(frozen=True, slots=True)
+class _PendingScan:
+    """A scan whose pose is known but whose deskewing waits for the next scan's pose."""
+
+    scan: Scan
+    raw: _RawFeatures
+    T_world_lidar: np.ndarray
+    index: int
+    is_keyframe: bool
+
+
+class _StageTimer:
+    """Context-manager factory that appends elapsed milliseconds per stage."""
+
+    def __init__(self, sink: dict[str, list[float]]) -> None:
+        self._sink = sink
+
+    def __call__(self, stage: str) -> "_StageTimer._Span":
+        return _StageTimer._Span(self._sink, stage)
+
+    class _Span:
+        __slots__ = ("_sink", "_stage", "_t0")
+
+        def __init__(self, sink: dict[str, list[float]], stage: str) -> None:
+            self._sink = sink
+            self._stage = stage
+
+        def __enter__(self) -> None:
+            self._t0 = time.perf_counter()
+
+        def __exit__(self, *exc: object) -> None:
+            self._sink[self._stage].append((time.perf_counter() - self._t0) * 1e3)
+
+
+def run_slam(scans: Iterable[Scan], config: Config | None = None) -> SlamResult:
+    """Library twin of ``lidar3d run``: process every scan and return the result."""
+    pipeline = SlamPipeline(config or Config())
+    for scan in scans:
+        pipeline.process(scan)
+    return pipeline.result()

@@ -1,0 +1,192 @@
+"""``lidar3d run``: SLAM over one recording, with every output published atomically.
+
+Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
+
+* ``trajectory_tum.txt`` / ``trajectory_kitti.txt`` (+ ``.times.txt``): refined pose of every scan;
+* ``odometry_tum.txt``: scan-to-scan odometry; ``keyframes_tum.txt``: keyframe poses;
+* ``map.pcd``: dense voxel map (deskewed scans placed with the final poses), with intensity;
+* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag;
+* ``config.toml``: the resolved configuration; ``eval/``: the GNSS report when a SPAN log is given.
+
+Every pose is the lidar pose at the scan's header stamp (sweep start for the velodyne driver).
+While running, trajectories and the summary are checkpointed every ``checkpoint_every_s`` and the
+map every ``map_checkpoint_every_s``; an interruption or crash publishes everything finished so
+far, marked ``"partial": true``.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lidar3d import __version__
+from lidar3d.config import Config, config_to_toml
+from lidar3d.errors import Lidar3dError
+from lidar3d.io.atomic import write_text_atomic
+from lidar3d.io.bag_reader import open_scan_source
+from lidar3d.io.pcd import write_pcd
+from lidar3d.io.trajectory_io import write_kitti, write_tum
+from lidar3d.pipeline import SlamPipeline, SlamResult
+
+__all__ = ["RunOutcome", "run_bag", "write_outputs"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class RunOutcome:
+    """What :func:`run_bag` produced: the result, the summary written, and the output folder."""
+
+    result: SlamResult
+    summary: dict
+    out_dir: Path
+
+
+def _summary(result: SlamResult, *, inputs: Sequence[str], topic: str, runtime_s: float, read_ms: list[float], extra: dict) -> dict:
+    n = len(result.trajectory)
+    stages = {"read": float(np.median(read_ms)) if read_ms else 0.0}
+    stages.update({k: float(np.median(v)) for k, v in result.timings_ms.items() if len(v)})
+    return {
+        "lidar3d_version": __version__,
+        "inputs": list(inputs),
+        "topic": topic,
+        "partial": result.partial,
+        "scans": n,
+        "keyframes": len(result.keyframes),
+        "length_m": round(result.trajectory.path_length_m, 3),
+        "duration_s": round((result.trajectory.stamps_ns[-1] - result.trajectory.stamps_ns[0]) * 1e-9, 3) if n else 0.0,
+        "runtime_s": round(runtime_s, 3),
+        "scans_per_s": round(n / runtime_s, 2) if runtime_s > 0 else 0.0,
+        "stage_ms_median": {k: round(v, 3) for k, v in stages.items()},
+        "map_points": int(len(result.map_points)),
+        "counts": result.counts,
+        "warnings": list(result.warnings),
+        "pose_stamp": "header stamp of each scan (sweep start for the velodyne driver)",
+        **extra,
+    }
+
+
+def write_outputs(out_dir: Path, result: SlamResult, summary: dict, *, with_map: bool = True) -> None:
+    """Publish trajectories, (optionally) the map, and the summary, each atomically."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_tum(out_dir / "trajectory_tum.txt", result.trajectory)
+    write_kitti(out_dir / "trajectory_kitti.txt", result.trajectory)
+    write_tum(out_dir / "odometry_tum.txt", result.odometry)
+    write_tum(out_dir / "keyframes_tum.txt", result.keyframes)
+    if with_map:
+        write_pcd(out_dir / "map.pcd", result.map_points, intensity=result.map_intensity.astype(np.float32))
+    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+
+
+def run_bag(
+    paths: str | Path | Sequence[str | Path],
+    out_dir: str | Path,
+    config: Config | None = None,
+    *,
+    start: int = 0,
+    max_scans: int | None = None,
+    span_log: str | Path | None = None,
+    extrinsics: str | Path | None = None,
+    on_scan: Callable[[int, int | None], None] | None = None,
+    checkpoint_every_s: float = 10.0,
+    map_checkpoint_every_s: float = 60.0,
+) -> RunOutcome:
+    """Run SLAM over the bag(s) ``paths`` and write every output into ``out_dir``.
+
+    Args:
+        start: skip this many scans first; ``max_scans``: stop after this many.
+        span_log: a NovAtel SPAN log to evaluate the trajectory against (report in ``eval/``).
+        extrinsics: lidar-to-IMU extrinsic file for that evaluation.
+        on_scan: called as ``on_scan(done, total)`` after each scan (progress display).
+    """
+    config = config or Config()
+    out = Path(out_dir)
+    paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    inputs = [str(p) for p in paths]
+    out.mkdir(parents=True, exist_ok=True)
+    write_text_atomic(out / "config.toml", config_to_toml(config))
+
+    pipeline = SlamPipeline(config)
+    read_ms: list[float] = []
+    t_start = time.perf_counter()
+    last_checkpoint = last_map_checkpoint = t_start
+    topic = ""
+    extra: dict = {}
+    finished = False
+    try:
+        with open_scan_source(paths, config) as source:
+            topic = source.topic
+            total = max(0, len(source) - start)
+            total = min(total, max_scans) if max_scans is not None else total
+            scans = iter(source)
+            for _ in range(start):
+                if next(scans, None) is None:
+                    break
+            done = 0
+            while max_scans is None or done < max_scans:
+                t0 = time.perf_counter()
+                scan = next(scans, None)
+                if scan is None:
+                    break
+                read_ms.append((time.perf_counter() - t0) * 1e3)
+                pipeline.process(scan)
+                done += 1
+                if on_scan is not None:
+                    on_scan(done, total)
+                now = time.perf_counter()
+                if now - last_checkpoint >= checkpoint_every_s:
+                    with_map = now - last_map_checkpoint >= map_checkpoint_every_s
+                    result = pipeline.result(partial=True)
+                    summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms, extra=extra)
+                    write_outputs(out, result, summary, with_map=with_map)
+                    last_checkpoint = now
+                    if with_map:
+                        last_map_checkpoint = now
+            stats = source.stats
+            extra["input_stats"] = {
+                "points_kept": stats.n_points_kept,
+                "nonfinite_dropped": stats.n_nonfinite,
+                "below_min_range_dropped": stats.n_below_min_range,
+                "messages_lost": stats.n_lost_messages,
+            }
+        if not pipeline.estimates:
+            raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
+        finished = True
+    finally:
+        result = pipeline.result(partial=not finished)
+        runtime = time.perf_counter() - t_start
+        if pipeline.estimates:
+            summary = _summary(result, inputs=inputs, topic=topic, runtime_s=runtime, read_ms=read_ms, extra=extra)
+            write_outputs(out, result, summary)
+            if not finished:
+                log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
+
+    if span_log is not None:
+        summary["evaluation"] = _evaluate(result, span_log, extrinsics, config, out)
+        write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    return RunOutcome(result, summary, out)
+
+
+def _evaluate(result: SlamResult, span_log, extrinsics, config: Config, out: Path) -> dict:
+    from lidar3d.gnss.extrinsic import read_extrinsic
+    from lidar3d.metrics import evaluate_against_span
+    from lidar3d.metrics.report import format_table, report_dict
+
+    T_imu_lidar = read_extrinsic(extrinsics) if extrinsics is not None else None
+    evaluation = evaluate_against_span(
+        result.trajectory,
+        span_log,
+        T_imu_lidar=T_imu_lidar,
+        config=config.gnss,
+        out_dir=out / "eval",
+        trajectory_source=str(out / "trajectory_tum.txt"),
+    )
+    log.info("evaluation against %s:\n%s", span_log, format_table(evaluation))
+    report = report_dict(evaluation)
+    return {"report": str(out / "eval"), "table": format_table(evaluation), "ate": report.get("ate")}
