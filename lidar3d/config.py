@@ -130,6 +130,7 @@ class MappingConfig:
     surf_voxel_m: float = 0.4  # keyframe and submap surface clouds
     scan_surf_voxel_m: float = 0.8  # the current scan's surface points matched against the submap
     max_iterations: int = 10
+    rematch_every: int = 1
     min_rows: int = 50
     degeneracy_threshold: float = 100.0
     converge_rotation_deg: float = 0.05
@@ -141,9 +142,11 @@ class MappingConfig:
     submap_max_keyframes: int = 60
     submap_recent_keyframes: int = 10
     submap_cache_keyframes: int = 400
+    submap_rebuild_every_keyframes: int = 3
     map_voxel_m: float = 0.2  # dense output map
     redeskew_passes: int = 1  # re-register after deskewing again with the refined motion
     redeskew_threshold_m: float = 0.01  # ... when the motion over a sweep changed this much
+    redeskew_iterations: int = 4  # iteration limit of that second registration
 
 
 @dataclass(frozen=True, slots=True)

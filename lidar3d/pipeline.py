@@ -117,6 +117,7 @@ class SlamPipeline:
             corner_voxel_m=mp.corner_voxel_m,
             surf_voxel_m=mp.surf_voxel_m,
             cache_size=mp.submap_cache_keyframes,
+            rebuild_every_keyframes=mp.submap_rebuild_every_keyframes,
         )
         self.dense_map = VoxelMap(mp.map_voxel_m)
         self.estimates: list[ScanEstimate] = []
@@ -224,10 +225,11 @@ class SlamPipeline:
         mp = self.config.mapping
         target = self.submap.target(T_world_lidar[:3, 3])
         used_twist = predicted
-        for _ in range(1 + mp.redeskew_passes):
+        for attempt in range(1 + mp.redeskew_passes):
             corner, surf = self._mapping_clouds(features)
             surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
-            refined = register_to_submap(target, corner, surf, T_world_lidar, mp)
+            iterations = mp.max_iterations if attempt == 0 else mp.redeskew_iterations
+            refined = register_to_submap(target, corner, surf, T_world_lidar, mp, iterations)
             if refined.iterations == 0:
                 return T_world_lidar, True
             T_world_lidar = refined.T_target_source

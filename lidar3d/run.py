@@ -109,8 +109,8 @@ def run_bag(
     out = Path(out_dir)
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     inputs = [str(p) for p in paths]
-    out.mkdir(parents=True, exist_ok=True)
-    write_text_atomic(out / "config.toml", config_to_toml(config))
+    # Check the evaluation inputs now, not after a run of hours.
+    T_imu_lidar = _check_evaluation_inputs(span_log, extrinsics)
 
     pipeline = SlamPipeline(config)
     read_ms: list[float] = []
@@ -121,6 +121,8 @@ def run_bag(
     finished = False
     try:
         with open_scan_source(paths, config) as source:
+            # Only a bag that opens gets an output folder (created here, with a clear error).
+            write_text_atomic(out / "config.toml", config_to_toml(config))
             topic = source.topic
             total = max(0, len(source) - start)
             total = min(total, max_scans) if max_scans is not None else total
@@ -168,17 +170,27 @@ def run_bag(
                 log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
 
     if span_log is not None:
-        summary["evaluation"] = _evaluate(result, span_log, extrinsics, config, out)
+        summary["evaluation"] = _evaluate(result, span_log, T_imu_lidar, config, out)
         write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     return RunOutcome(result, summary, out)
 
 
-def _evaluate(result: SlamResult, span_log, extrinsics, config: Config, out: Path) -> dict:
+def _check_evaluation_inputs(span_log, extrinsics) -> np.ndarray | None:
+    """Fail fast on a missing SPAN log or a bad extrinsic file; returns ``T_imu_lidar`` (or None)."""
+    from lidar3d.errors import GnssError
     from lidar3d.gnss.extrinsic import read_extrinsic
+
+    if extrinsics is not None and span_log is None:
+        raise GnssError(f"{extrinsics}: an extrinsic file is only used with a SPAN log to evaluate against")
+    if span_log is not None and not Path(span_log).is_file():
+        raise GnssError(f"{span_log}: GNSS log not found")
+    return read_extrinsic(extrinsics) if extrinsics is not None else None
+
+
+def _evaluate(result: SlamResult, span_log, T_imu_lidar: np.ndarray | None, config: Config, out: Path) -> dict:
     from lidar3d.metrics import evaluate_against_span
     from lidar3d.metrics.report import format_table, report_dict
 
-    T_imu_lidar = read_extrinsic(extrinsics) if extrinsics is not None else None
     evaluation = evaluate_against_span(
         result.trajectory,
         span_log,
@@ -187,6 +199,6 @@ def _evaluate(result: SlamResult, span_log, extrinsics, config: Config, out: Pat
         out_dir=out / "eval",
         trajectory_source=str(out / "trajectory_tum.txt"),
     )
-    log.info("evaluation against %s:\n%s", span_log, format_table(evaluation))
+    log.info("evaluated against %s: report in %s", span_log, out / "eval")
     report = report_dict(evaluation)
     return {"report": str(out / "eval"), "table": format_table(evaluation), "ate": report.get("ate")}

@@ -62,6 +62,7 @@ class Submap:
         corner_voxel_m: float,
         surf_voxel_m: float,
         cache_size: int = 400,
+        rebuild_every_keyframes: int = 1,
     ) -> None:
         self.radius_m = radius_m
         self.max_keyframes = max_keyframes
@@ -69,6 +70,8 @@ class Submap:
         self.corner_voxel_m = corner_voxel_m
         self.surf_voxel_m = surf_voxel_m
         self.cache_size = cache_size
+        self.rebuild_every_keyframes = rebuild_every_keyframes
+        self._added_since_build = 0
         self.keyframes: list[Keyframe] = []
         self._poses: list[np.ndarray] = []
         self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
@@ -85,7 +88,7 @@ class Submap:
     def add(self, keyframe: Keyframe) -> None:
         self.keyframes.append(keyframe)
         self._poses.append(np.array(keyframe.T_world_lidar))
-        self._target = None
+        self._added_since_build += 1
 
     def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
         """Replace keyframe ``k``'s clouds (e.g. once a better deskewing motion is known)."""
@@ -128,10 +131,18 @@ class Submap:
         return tuple(sorted(set(near.tolist()) | set(recent.tolist())))
 
     def target(self, position_m: np.ndarray) -> SubmapTarget:
-        """The submap around ``position_m`` (rebuilt only when the selection changes)."""
+        """The submap around ``position_m``.
+
+        The previous build is reused while fewer than ``rebuild_every_keyframes`` keyframes were
+        added since and the selection holds no other keyframe than those (building costs a voxel
+        filter and two k-d trees); replacing poses or clouds forces a rebuild.
+        """
         selection = self.select(position_m)
-        if self._target is not None and self._target.keyframe_indices == selection:
-            return self._target
+        if self._target is not None and self._added_since_build < self.rebuild_every_keyframes:
+            newest = set(range(len(self.keyframes) - self._added_since_build, len(self.keyframes)))
+            if set(selection) <= set(self._target.keyframe_indices) | newest:
+                return self._target
+        self._added_since_build = 0
         corners = [self._world_clouds(k)[0] for k in selection]
         surfs = [self._world_clouds(k)[1] for k in selection]
         corner = np.concatenate(corners) if corners else np.zeros((0, 3))

@@ -23,6 +23,7 @@ def register_to_submap(
     surf_lidar: np.ndarray,
     T_world_lidar_guess: np.ndarray,
     config: MappingConfig,
+    max_iterations: int | None = None,
 ) -> SolveResult:
     """Refine ``T_world_lidar`` of a scan whose features are given in its lidar frame."""
     source = np.concatenate([corner_lidar, surf_lidar])
@@ -43,7 +44,8 @@ def register_to_submap(
         T_world_lidar_guess,
         source,
         find_matches,
-        max_iterations=config.max_iterations,
+        max_iterations=config.max_iterations if max_iterations is None else max_iterations,
+        rematch_every=config.rematch_every,
         min_rows=config.min_rows,
         degeneracy_threshold=config.degeneracy_threshold,
         converge_rotation_deg=config.converge_rotation_deg,
