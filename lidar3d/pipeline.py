@@ -128,6 +128,7 @@ class SlamPipeline:
         self._scan_index = -1
         self._fallback_run_start: int | None = None
         self._pending: _PendingScan | None = None
+        self._last_keyframe_pose: np.ndarray | None = None
 
     # -- driver -------------------------------------------------------------------------------
 
@@ -161,7 +162,9 @@ class SlamPipeline:
         if previous is not None:
             self._twist = twist_between(previous.T_world_lidar, T_world_lidar, dt_s)
 
-        is_keyframe = self._is_keyframe(T_world_lidar)
+        is_keyframe = self._is_keyframe(T_world_lidar, raw)
+        if is_keyframe:
+            self._last_keyframe_pose = T_world_lidar
         with timer("map_update"):
             # The sweep of the previous scan is deskewed for good now that the motion after it
             # (forward difference) is known; this scan waits for the next one.
@@ -231,7 +234,7 @@ class SlamPipeline:
             iterations = mp.max_iterations if attempt == 0 else mp.redeskew_iterations
             refined = register_to_submap(target, corner, surf, T_world_lidar, mp, iterations)
             if refined.iterations == 0:
-                return T_world_lidar, True
+                return T_world_lidar, step.used_motion_model
             T_world_lidar = refined.T_target_source
             twist = twist_between(previous.T_world_lidar, T_world_lidar, dt_s)
             if np.linalg.norm((twist - used_twist)[:3]) * self.sensor.sweep_period_s < mp.redeskew_threshold_m:
@@ -246,14 +249,17 @@ class SlamPipeline:
         r = np.linalg.norm(points, axis=1)
         return (r >= self.config.sensor.min_range_m) & (r <= self.sensor.max_range_m)
 
-    def _is_keyframe(self, T_world_lidar: np.ndarray) -> bool:
-        if not len(self.submap):
+    def _is_keyframe(self, T_world_lidar: np.ndarray, raw: "_RawFeatures") -> bool:
+        """A scan with features becomes a keyframe after enough motion since the last one."""
+        mp = self.config.mapping
+        n_surface = len(raw.features.less_flat) + len(raw.features.outliers) + len(raw.ground)
+        if n_surface < mp.min_rows:
+            return False
+        if self._last_keyframe_pose is None:
             return True
-        last = self.submap.poses[-1]
-        delta = invert(last) @ T_world_lidar
+        delta = invert(self._last_keyframe_pose) @ T_world_lidar
         moved = np.linalg.norm(delta[:3, 3])
         angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
-        mp = self.config.mapping
         return moved >= mp.keyframe_distance_m or angle >= mp.keyframe_angle_deg
 
     def _track_fallback(self, index: int, motion_model_only: bool) -> None:
@@ -264,20 +270,33 @@ class SlamPipeline:
         elif self._fallback_run_start is not None:
             self._close_fallback_run(index)
 
+    @staticmethod
+    def _fallback_message(start: int, end_index: int) -> str:
+        return f"scans {start}-{end_index - 1}: too few features, pose from the motion model"
+
     def _close_fallback_run(self, end_index: int) -> None:
-        start = self._fallback_run_start
+        message = self._fallback_message(self._fallback_run_start, end_index)
         self._fallback_run_start = None
-        message = f"scans {start}-{end_index - 1}: too few features, pose from the motion model"
         self.warnings.append(message)
         log.warning(message)
 
-    def result(self, partial: bool = False) -> SlamResult:
-        """The result so far (``partial`` marks an interrupted run)."""
+    def finish(self) -> None:
+        """End of input: publish the last scan to the map and close an open fallback stretch."""
         if self._fallback_run_start is not None:
             self._close_fallback_run(self._scan_index + 1)
         if self._pending is not None:
             self._publish(self._pending, self._twist)
             self._pending = None
+
+    def result(self, partial: bool = False) -> SlamResult:
+        """A snapshot of the result so far; changes nothing (``partial`` marks an unfinished run).
+
+        Before :meth:`finish`, the last scan is not yet in the map (its deskewing waits for the
+        next scan) and an open fallback stretch is reported up to the last scan.
+        """
+        warnings = list(self.warnings)
+        if self._fallback_run_start is not None:
+            warnings.append(self._fallback_message(self._fallback_run_start, self._scan_index + 1))
         stamps = np.array([e.stamp_ns for e in self.estimates], dtype=np.int64)
         poses = np.array([e.T_world_lidar for e in self.estimates]).reshape(-1, 4, 4)
         odom = np.array([e.T_world_odom for e in self.estimates]).reshape(-1, 4, 4)
@@ -293,7 +312,7 @@ class SlamPipeline:
             map_intensity=map_intensity,
             timings_ms={k: np.asarray(v) for k, v in self.timings.items()},
             counts=dict(self.counts),
-            warnings=tuple(self.warnings),
+            warnings=tuple(warnings),
             partial=partial,
         )
 
@@ -360,4 +379,5 @@ def run_slam(scans: Iterable[Scan], config: Config | None = None) -> SlamResult:
     pipeline = SlamPipeline(config or Config())
     for scan in scans:
         pipeline.process(scan)
+    pipeline.finish()
     return pipeline.result()

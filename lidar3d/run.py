@@ -161,6 +161,7 @@ def run_bag(
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
         finished = True
     finally:
+        pipeline.finish()
         result = pipeline.result(partial=not finished)
         runtime = time.perf_counter() - t_start
         if pipeline.estimates:

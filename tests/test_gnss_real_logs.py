@@ -129,7 +129,8 @@ def test_insstdev_values():
 
 
 def _frames():
-    return json.loads((ASCII / "binary_frames_oem7_driver.json").read_text())
+    path = ASCII / "binary_frames_oem7_driver.json"
+    return json.loads(path.read_text()) if path.is_file() else []  # the module is skipped without it
 
 
 @pytest.mark.parametrize("frame", _frames(), ids=lambda f: f"{f['file']}@{f['offset']}:{f['msg']}")

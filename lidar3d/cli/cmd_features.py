@@ -81,26 +81,6 @@ class FeaturesExportSummary:
     median_total_ms: float
 
 
-def _write_cloud(path: Path, points, **fields) -> None:
-    """A binary PCD; a header-only one for an empty cloud (Open3D refuses to write those)."""
-    import numpy as np
-
-    from lidar3d.io.atomic import write_text_atomic
-    from lidar3d.io.pcd import write_pcd
-
-    if len(points):
-        write_pcd(path, points, **fields)
-        return
-    names = ["x", "y", "z", *fields]
-    types = ["F", "F", "F"] + ["I" if np.issubdtype(np.asarray(v).dtype, np.integer) else "F" for v in fields.values()]
-    header = (
-        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
-        f"FIELDS {' '.join(names)}\nSIZE {' '.join('4' for _ in names)}\nTYPE {' '.join(types)}\n"
-        f"COUNT {' '.join('1' for _ in names)}\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n"
-    )
-    write_text_atomic(path, header)
-
-
 def _write_scan_folder(folder: Path, result) -> None:
     """Write the seven clouds of one scan into ``folder`` (built beside it, then renamed)."""
     import os
@@ -110,6 +90,7 @@ def _write_scan_folder(folder: Path, result) -> None:
     import numpy as np
 
     from lidar3d.errors import OutputError
+    from lidar3d.io.pcd import write_pcd
 
     segmentation, features = result.segmentation, result.features
     image = segmentation.image
@@ -125,20 +106,20 @@ def _write_scan_folder(folder: Path, result) -> None:
     except OSError as err:
         raise OutputError(f"{folder}: cannot create a folder beside it: {err.strerror}") from err
     try:
-        _write_cloud(staging / "ground.pcd", points[ground_cells])
-        _write_cloud(
+        write_pcd(staging / "ground.pcd", points[ground_cells])
+        write_pcd(
             staging / "clusters.pcd",
             points[image.point_index[cluster_cells]],
             label=segmentation.cluster_label[cluster_cells].astype(np.int32),
         )
-        _write_cloud(staging / "outliers.pcd", points[outlier_cells])
+        write_pcd(staging / "outliers.pcd", points[outlier_cells])
         for name, cloud in (
             ("edge_sharp.pcd", features.sharp),
             ("edge_less_sharp.pcd", features.less_sharp),
             ("planar_flat.pcd", features.flat),
             ("planar_less_flat.pcd", features.less_flat),
         ):
-            _write_cloud(staging / name, cloud.points, ring=cloud.ring.astype(np.int32))
+            write_pcd(staging / name, cloud.points, ring=cloud.ring.astype(np.int32))
         if folder.exists():
             shutil.rmtree(folder)
         os.replace(staging, folder)

@@ -48,8 +48,10 @@ def run(args: argparse.Namespace) -> int:
         if args.map_voxel <= 0:
             raise ConfigError(f"--map-voxel must be positive, got {args.map_voxel}")
         config = dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, map_voxel_m=args.map_voxel))
-    if args.start < 0 or (args.max_scans is not None and args.max_scans <= 0):
-        raise ConfigError("--start must be >= 0 and --max-scans > 0")
+    if args.start < 0:
+        raise ConfigError(f"--start must be 0 or more, got {args.start}")
+    if args.max_scans is not None and args.max_scans <= 0:
+        raise ConfigError(f"--max-scans must be 1 or more, got {args.max_scans}")
     if args.extrinsics and not args.span:
         raise ConfigError("--extrinsics needs --span")
     progress = Progress(None, "run")

@@ -66,3 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 def entry_point() -> None:  # pragma: no cover - thin wrapper for the console script
     sys.exit(main())
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from lidar3d.errors import OutputError
-from lidar3d.io.atomic import atomic_path
+from lidar3d.io.atomic import atomic_path, write_text_atomic
 
 __all__ = ["write_pcd", "read_pcd"]
 
@@ -16,13 +16,17 @@ def write_pcd(path: str | Path, points: np.ndarray, **fields: np.ndarray) -> Non
     """Write ``points`` (N,3) and per-point scalar ``fields`` (each (N,)) as a binary PCD.
 
     Typical fields: ``intensity`` (float32) and ``label`` (int32). The file opens in PCL,
-    CloudCompare and Open3D. Written atomically.
+    CloudCompare and Open3D. Written atomically. An empty cloud gets a valid header-only PCD
+    (Open3D refuses to write those).
     """
     import open3d as o3d
 
     points = np.asarray(points)
     if points.ndim != 2 or points.shape[1] != 3:
         raise ValueError(f"points must be (N, 3), got {points.shape}")
+    if len(points) == 0:
+        _write_empty_pcd(path, fields)
+        return
     cloud = o3d.t.geometry.PointCloud()
     cloud.point.positions = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
     for name, values in fields.items():
@@ -35,6 +39,17 @@ def write_pcd(path: str | Path, points: np.ndarray, **fields: np.ndarray) -> Non
         ok = o3d.t.io.write_point_cloud(str(tmp), cloud, write_ascii=False, compressed=False)
         if not ok:
             raise OutputError(f"{path}: Open3D could not write the point cloud")
+
+
+def _write_empty_pcd(path: str | Path, fields: dict[str, np.ndarray]) -> None:
+    names = ["x", "y", "z", *fields]
+    types = ["F", "F", "F"] + ["I" if np.issubdtype(np.asarray(v).dtype, np.integer) else "F" for v in fields.values()]
+    header = (
+        "# .PCD v0.7 - Point Cloud Data file format\nVERSION 0.7\n"
+        f"FIELDS {' '.join(names)}\nSIZE {' '.join('4' for _ in names)}\nTYPE {' '.join(types)}\n"
+        f"COUNT {' '.join('1' for _ in names)}\nWIDTH 0\nHEIGHT 1\nVIEWPOINT 0 0 0 1 0 0 0\nPOINTS 0\nDATA ascii\n"
+    )
+    write_text_atomic(path, header)
 
 
 def read_pcd(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
