@@ -32,6 +32,7 @@ __all__ = [
     "GnssConfig",
     "OdometryConfig",
     "MappingConfig",
+    "LoopConfig",
     "load_config",
     "config_from_dict",
     "config_to_toml",
@@ -166,6 +167,48 @@ class GnssConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class LoopConfig:
+    """Loop closure and pose graph (lidar3d.loop). Sources: LeGO-LOAM/LIO-SAM mapOptmization,
+    hdl_graph_slam loop_detector, KISS-SLAM loop_closer (shared/reference/lego-loam-and-peers.md)."""
+
+    enabled: bool = True
+    search_radius_m: float = 7.0  # LeGO-LOAM historyKeyframeSearchRadius (LIO-SAM 15)
+    horizontal_distance: bool = True  # hdl_graph_slam: (x, y) distance, blind to height drift
+    min_time_gap_s: float = 30.0  # LeGO-LOAM / LIO-SAM historyKeyframeSearchTimeDiff
+    max_candidates: int = 2  # verified per query keyframe, nearest first, until one is accepted
+    cooldown_keyframes: int = 5  # after an accepted loop, skip this many query keyframes
+    submap_neighbours: int = 10  # target = match +- this many keyframes (LeGO-LOAM +-25 at 0.3 m spacing)
+    voxel_m: float = 0.4  # LeGO-LOAM loop target downsampling
+    icp_method: str = "point_to_plane"  # or "gicp" (Open3D generalized ICP)
+    icp_max_correspondence_m: tuple[float, ...] = (4.0, 2.0, 1.0, 0.5)  # coarse-to-fine stages
+    icp_max_iterations: int = 30  # per stage
+    normal_radius_m: float = 1.2  # target normals for point-to-plane
+    min_source_points: int = 300  # LIO-SAM loop check
+    min_target_points: int = 1000  # LIO-SAM loop check
+    min_fitness: float = 0.7  # share of query points with a target point within the final distance
+    max_rmse_m: float = 0.3  # inlier RMSE at the final distance (0.4 m voxel centroids: ~0.15 typical)
+    min_overlap: float = 0.5  # voxel overlap |A & B| / min(|A|, |B|) (KISS-SLAM: 0.4)
+    overlap_voxel_m: float = 1.0
+    max_correction_m: float = 1.0  # ICP may move the guess this far ...
+    correction_per_distance: float = 0.01  # ... plus 1 % of the path between the two keyframes
+    max_correction_deg: float = 10.0
+    information_points: int = 100  # effective independent correspondences behind the loop information
+    min_sigma_translation_m: float = 0.02  # floor added to the loop covariance
+    min_sigma_rotation_deg: float = 0.1
+    huber_k: float = 1.345  # Huber threshold on loop factors, in sigmas (hdl_graph_slam: 1.0)
+    odometry_sigma_translation_m: float = 0.01  # per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-4)
+    odometry_sigma_rotation_deg: float = 0.05  # per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-6 rad^2)
+    relinearize_threshold: float = 0.01  # iSAM2 (LIO-SAM 0.1)
+    extra_updates: int = 5  # iSAM2 updates after a loop (LIO-SAM 5)
+
+    def __post_init__(self) -> None:
+        if self.icp_method not in ("point_to_plane", "gicp"):
+            raise ConfigError(f"config loop.icp_method: {self.icp_method!r} is not point_to_plane or gicp")
+        if not self.icp_max_correspondence_m or min(self.icp_max_correspondence_m) <= 0:
+            raise ConfigError("config loop.icp_max_correspondence_m: needs at least one positive distance")
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     """The whole configuration."""
 
@@ -175,6 +218,7 @@ class Config:
     features: FeatureConfig = field(default_factory=FeatureConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    loop: LoopConfig = field(default_factory=LoopConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
 
 

@@ -15,6 +15,7 @@ Each pose is the lidar pose at the scan's header stamp (see :mod:`lidar3d.mappin
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from collections import defaultdict
@@ -24,14 +25,16 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidar3d.config import Config
-from lidar3d.mapping.deskew import deskew_features, deskew_points, deskew_scan, twist_between
+from lidar3d.loop.closer import LoopCloser, correct_scan_poses
+from lidar3d.mapping.dense_map import add_scan_to_map
+from lidar3d.mapping.deskew import deskew_features, deskew_points, twist_between
 from lidar3d.mapping.keyframes import Keyframe, Submap
 from lidar3d.features.frontend import STAGES as FRONT_END_STAGES
 from lidar3d.features.frontend import run_front_end
 from lidar3d.features.records import FeatureCloud, FeatureSet
 from lidar3d.mapping.odometry import ScanToScanOdometry
 from lidar3d.mapping.scan_to_map import register_to_submap
-from lidar3d.mapping.se3 import exp_se3, invert, transform_points
+from lidar3d.mapping.se3 import exp_se3, invert
 from lidar3d.mapping.voxel import VoxelMap, voxel_downsample
 from lidar3d.records import Scan, Trajectory
 
@@ -78,6 +81,10 @@ class SlamResult:
         counts: named counters (scans, dropped stamps, motion-model scans, degenerate scans...).
         warnings: human-readable warnings collected during the run.
         partial: the run stopped before the end of the input.
+        loop_candidates: every verified loop candidate (``lidar3d.loop.records.LoopCandidate``),
+            accepted or rejected, with its reason.
+        pose_graph_g2o: the keyframe pose graph in g2o text ("" without loop closure).
+        loop_ms_total: milliseconds spent in loop detection and the pose graph.
     """
 
     trajectory: Trajectory
@@ -90,6 +97,9 @@ class SlamResult:
     counts: dict[str, int]
     warnings: tuple[str, ...] = field(default=())
     partial: bool = False
+    loop_ms_total: float = 0.0
+    loop_candidates: tuple = field(default=())
+    pose_graph_g2o: str = ""
 
 
 class SlamPipeline:
@@ -129,6 +139,9 @@ class SlamPipeline:
         self._fallback_run_start: int | None = None
         self._pending: _PendingScan | None = None
         self._last_keyframe_pose: np.ndarray | None = None
+        self._correction = np.eye(4)
+        self.loop = LoopCloser(config.loop) if config.loop.enabled else None
+        self.loop_ms = 0.0
 
     # -- driver -------------------------------------------------------------------------------
 
@@ -169,7 +182,11 @@ class SlamPipeline:
             # The sweep of the previous scan is deskewed for good now that the motion after it
             # (forward difference) is known; this scan waits for the next one.
             if self._pending is not None:
+                self._correction = np.eye(4)
                 self._publish(self._pending, self._twist)
+                T_world_lidar = self._correction @ T_world_lidar
+                if is_keyframe:
+                    self._last_keyframe_pose = T_world_lidar
             self._pending = _PendingScan(scan, raw, T_world_lidar, index, is_keyframe)
             if is_keyframe and not len(self.submap):
                 self._publish_keyframe(self._pending, predicted)
@@ -186,15 +203,34 @@ class SlamPipeline:
         elif pending.is_keyframe:
             # The first keyframe was added at once (no motion known then); deskew it properly.
             self.submap.replace_clouds(len(self.submap) - 1, *self._mapping_clouds(pending.raw.deskewed(twist)))
-        final = deskew_scan(pending.scan, twist)
-        keep = self._in_range(final.points)
-        self.dense_map.insert(transform_points(pending.T_world_lidar, final.points[keep]), final.intensity[keep])
+        add_scan_to_map(self.dense_map, pending.scan, pending.T_world_lidar, twist, self.config)
 
     def _publish_keyframe(self, pending: "_PendingScan", twist: np.ndarray) -> None:
         corner, surf = self._mapping_clouds(pending.raw.deskewed(twist))
         self.submap.add(
             Keyframe(len(self.submap), pending.index, pending.scan.stamp_ns, pending.T_world_lidar, corner, surf)
         )
+        self._close_loops()
+
+    def _close_loops(self) -> None:
+        """Look for a loop at the newest keyframe; on success correct every pose so far."""
+        if self.loop is None:
+            return
+        t0 = time.perf_counter()
+        update = self.loop.on_keyframe(self.submap.keyframes, self.submap.poses)
+        self.loop_ms += (time.perf_counter() - t0) * 1e3
+        if update is None:
+            return
+        self.counts["loop_closures"] += len(update.closures)
+        self.submap.set_poses(update.poses)
+        keyframe_stamps = np.array([kf.stamp_ns for kf in self.submap.keyframes], dtype=np.int64)
+        stamps = np.array([e.stamp_ns for e in self.estimates], dtype=np.int64)
+        poses = np.array([e.T_world_lidar for e in self.estimates]).reshape(-1, 4, 4)
+        corrected = correct_scan_poses(stamps, poses, keyframe_stamps, update.previous_poses, update.poses)
+        self.estimates = [dataclasses.replace(e, T_world_lidar=T) for e, T in zip(self.estimates, corrected)]
+        # Poses not yet in the estimates (the scan being processed) follow the newest keyframe.
+        self._correction = update.correction @ self._correction
+        self._last_keyframe_pose = update.poses[-1]
 
     def _mapping_clouds(self, features: "_RawFeatures") -> tuple[np.ndarray, np.ndarray]:
         """Corner (less-sharp) and surface (less-flat, outliers, ground) clouds, voxel-downsampled."""
@@ -244,10 +280,6 @@ class SlamPipeline:
         if refined.degenerate_axes:
             self.counts["degenerate_scans"] += 1
         return T_world_lidar, False
-
-    def _in_range(self, points: np.ndarray) -> np.ndarray:
-        r = np.linalg.norm(points, axis=1)
-        return (r >= self.config.sensor.min_range_m) & (r <= self.sensor.max_range_m)
 
     def _is_keyframe(self, T_world_lidar: np.ndarray, raw: "_RawFeatures") -> bool:
         """A scan with features becomes a keyframe after enough motion since the last one."""
@@ -311,9 +343,12 @@ class SlamPipeline:
             map_points=map_points,
             map_intensity=map_intensity,
             timings_ms={k: np.asarray(v) for k, v in self.timings.items()},
+            loop_ms_total=self.loop_ms,
             counts=dict(self.counts),
             warnings=tuple(warnings),
             partial=partial,
+            loop_candidates=tuple(self.loop.candidates) if self.loop else (),
+            pose_graph_g2o=self.loop.graph.g2o_text(self.submap.poses) if self.loop and len(self.submap) else "",
         )
 
 

@@ -16,6 +16,7 @@ far, marked ``"partial": true``.
 
 from __future__ import annotations
 
+import itertools
 import json
 import logging
 import time
@@ -32,6 +33,7 @@ from lidar3d.io.atomic import write_text_atomic
 from lidar3d.io.bag_reader import open_scan_source
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.trajectory_io import write_kitti, write_tum
+from lidar3d.mapping.dense_map import build_dense_map
 from lidar3d.pipeline import SlamPipeline, SlamResult
 
 __all__ = ["RunOutcome", "run_bag", "write_outputs"]
@@ -65,6 +67,9 @@ def _summary(result: SlamResult, *, inputs: Sequence[str], topic: str, runtime_s
         "scans_per_s": round(n / runtime_s, 2) if runtime_s > 0 else 0.0,
         "stage_ms_median": {k: round(v, 3) for k, v in stages.items()},
         "map_points": int(len(result.map_points)),
+        "loop_closures": int(result.counts.get("loop_closures", 0)),
+        "loop_candidates": len(result.loop_candidates),
+        "loop_ms_total": round(result.loop_ms_total, 1),
         "counts": result.counts,
         "warnings": list(result.warnings),
         "pose_stamp": "header stamp of each scan (sweep start for the velodyne driver)",
@@ -81,7 +86,23 @@ def write_outputs(out_dir: Path, result: SlamResult, summary: dict, *, with_map:
     write_tum(out_dir / "keyframes_tum.txt", result.keyframes)
     if with_map:
         write_pcd(out_dir / "map.pcd", result.map_points, intensity=result.map_intensity.astype(np.float32))
+    if result.pose_graph_g2o:
+        _write_loop_outputs(out_dir, result)
     write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+
+
+def _write_loop_outputs(out_dir: Path, result: SlamResult) -> None:
+    """``loops.csv`` (every candidate), ``pose_graph.g2o`` and the top view with closures."""
+    from lidar3d.loop.report import write_loops_csv, write_pose_graph_g2o, write_top_view
+
+    write_loops_csv(out_dir / "loops.csv", result.loop_candidates)
+    write_pose_graph_g2o(out_dir / "pose_graph.g2o", result.pose_graph_g2o)
+    write_top_view(
+        out_dir / "trajectory_loops.png",
+        result.trajectory.positions_m,
+        result.keyframes.positions_m,
+        [c for c in result.loop_candidates if c.accepted],
+    )
 
 
 def run_bag(
@@ -159,6 +180,14 @@ def run_bag(
             }
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
+        pipeline.finish()
+        if pipeline.counts.get("loop_closures"):
+            # Loop closures moved poses after their scans entered the map: place every scan again.
+            t0 = time.perf_counter()
+            with open_scan_source(paths, config) as source:
+                scans = itertools.islice(source, start, start + done)
+                pipeline.dense_map = build_dense_map(scans, pipeline.result().trajectory, config)
+            extra["map_rebuild_s"] = round(time.perf_counter() - t0, 3)
         finished = True
     finally:
         pipeline.finish()

@@ -28,6 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--start", type=int, default=0, metavar="N", help="skip the first N scans")
     parser.add_argument("--max-scans", type=int, metavar="N", help="process at most N scans")
     parser.add_argument("--map-voxel", type=float, metavar="M", help="voxel size of map.pcd in metres")
+    parser.add_argument("--no-loop", action="store_true", help="turn loop closure off")
     parser.add_argument("--span", metavar="LOG", help="NovAtel SPAN log: evaluate the trajectory against it")
     parser.add_argument("--extrinsics", metavar="FILE", help="lidar-to-IMU extrinsic for --span (TOML/YAML)")
     parser.set_defaults(func=run)
@@ -44,6 +45,8 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     if args.topic:
         config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
+    if args.no_loop:
+        config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
     if args.map_voxel is not None:
         if args.map_voxel <= 0:
             raise ConfigError(f"--map-voxel must be positive, got {args.map_voxel}")
@@ -77,7 +80,7 @@ def run(args: argparse.Namespace) -> int:
     s = outcome.summary
     print(
         f"{s['scans']} scans, {s['length_m']:.1f} m, {s['runtime_s']:.1f} s ({s['scans_per_s']:.1f} scans/s), "
-        f"{s['keyframes']} keyframes, {s['map_points']} map points"
+        f"{s['keyframes']} keyframes, {s['loop_closures']} loop closures, {s['map_points']} map points"
     )
     for warning in s["warnings"]:
         print(f"warning: {warning}")

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lidar3d.mapping.se3 import pose_from_xyz_rpy, xyz_rpy_from_pose
+from lidar3d.mapping.se3 import cross, pose_from_xyz_rpy, xyz_rpy_from_pose
 
 __all__ = [
     "MatchRows",
@@ -103,9 +103,9 @@ def line_rows_from_directions(source_index: np.ndarray, line_point: np.ndarray, 
     """Two rows per point-to-line match: the two components of the perpendicular offset."""
     u = direction / np.linalg.norm(direction, axis=1, keepdims=True)
     helper = np.where(np.abs(u[:, [0]]) < 0.9, np.array([[1.0, 0.0, 0.0]]), np.array([[0.0, 1.0, 0.0]]))
-    b1 = np.cross(u, helper)
+    b1 = cross(u, helper)
     b1 /= np.linalg.norm(b1, axis=1, keepdims=True)
-    b2 = np.cross(u, b1)
+    b2 = cross(u, b1)
     normal = np.concatenate([b1, b2])
     offset = -np.einsum("ij,ij->i", normal, np.concatenate([line_point, line_point]))
     index = np.concatenate([source_index, source_index]).astype(np.int64)

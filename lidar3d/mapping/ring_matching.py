@@ -18,6 +18,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from lidar3d.mapping.registration import MatchRows, line_rows_from_directions
+from lidar3d.mapping.se3 import cross
 
 __all__ = ["RingIndexedCloud"]
 
@@ -110,7 +111,7 @@ class RingIndexedCloud:
         pj = self.points[j[good]]
         pl = self.points[l_idx[good]]
         pm = self.points[m_idx[good]]
-        normal = np.cross(pl - pj, pm - pj)
+        normal = cross(pl - pj, pm - pj)
         norm = np.linalg.norm(normal, axis=1)
         keep = norm > 1e-6
         normal = normal[keep] / norm[keep, None]

@@ -1,0 +1,374 @@
+"""Keyframe pose graph solved incrementally with iSAM2 — the only module that imports GTSAM.
+
+Variables: one ``Pose3`` per keyframe, key ``X(k)`` = ``gtsam.symbol('x', k)``, value
+``T_world_lidar`` of keyframe ``k``. Factors (LeGO-LOAM ``saveKeyFramesAndFactor`` /
+``performLoopClosure``):
+
+* a prior on keyframe 0 at its given pose (sigmas 1e-4 rad / 1e-4 m: it only fixes the gauge);
+* an odometry ``BetweenFactor(X(k-1), X(k), T_prev_curr)`` per new keyframe, diagonal noise;
+* a loop ``BetweenFactor(X(match), X(query), T_match_query)`` per accepted closure, Gaussian noise
+  from the given 6x6 information behind a **Huber** kernel (``noiseModel.Robust.Create(
+  mEstimator.Huber.Create(k), Gaussian.Information(Λ))``), so that a wrong closure costs only
+  linearly once its whitened error exceeds ``k``.
+
+**Noise order and units.** GTSAM's ``Pose3`` tangent is ``(ωx, ωy, ωz, vx, vy, vz)``: rotation
+first (radians), then translation (metres), perturbation on the right (``T exp(ξ)``, body frame).
+Every sigma vector and information matrix here uses that order; :meth:`PoseGraph.g2o_text` swaps
+the blocks into g2o's translation-first order.
+
+**Incremental solve.** New factors and new values are collected and handed to ``ISAM2.update``
+exactly once, then cleared (DESIGN.md: iSAM2 gets only the new factors and values). After a loop,
+``extra_updates`` more empty updates with forced relinearisation let the Huber weights settle
+(LIO-SAM runs 5 extra updates after a loop or GPS factor). If GTSAM raises (e.g. an indeterminant
+linear system), the error is logged, the new loop factors of that batch are retried one at a time
+on a graph rebuilt from the factors already accepted, and every loop factor that still fails is
+dropped; odometry is never dropped.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from lidar3d.loop.rigid import nearest_rigid
+
+__all__ = ["GraphEdge", "PoseGraph"]
+
+log = logging.getLogger(__name__)
+
+_PRIOR_SIGMAS = np.array([1e-4, 1e-4, 1e-4, 1e-4, 1e-4, 1e-4])
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class GraphEdge:
+    """A relative-pose factor as kept for export.
+
+    Attributes:
+        source: keyframe index of the first variable (``match`` for loops, ``k-1`` for odometry).
+        target: keyframe index of the second variable.
+        T_source_target: (4,4) measured pose of ``target`` in ``source``'s frame.
+        information: (6,6) information, GTSAM order (rot, trans).
+        kind: ``"odometry"`` or ``"loop"``.
+    """
+
+    source: int
+    target: int
+    T_source_target: np.ndarray
+    information: np.ndarray
+    kind: str
+
+
+def _symbol(k: int) -> int:
+    import gtsam
+
+    return gtsam.symbol("x", int(k))
+
+
+def _check_pose(T: np.ndarray, name: str) -> np.ndarray:
+    """A finite 4x4 transform with its rotation projected onto SO(3) (see :mod:`lidar3d.loop.rigid`)."""
+    T = np.asarray(T, dtype=np.float64)
+    if T.shape != (4, 4) or not np.isfinite(T).all():
+        raise ValueError(f"{name} must be a finite (4,4) transform")
+    return nearest_rigid(T)
+
+
+class PoseGraph:
+    """Keyframe poses, odometry and loop factors, solved with iSAM2.
+
+    Args:
+        huber_k: Huber threshold in whitened units (sigmas) for loop factors; 1.345 is the usual
+            95 %-efficiency choice, hdl_graph_slam uses 1.0.
+        relinearize_threshold: iSAM2 relinearisation threshold on the tangent delta (LIO-SAM 0.1).
+        relinearize_skip: relinearisation check every this many updates (LIO-SAM 1).
+        extra_updates: empty iSAM2 updates after a batch containing loop factors (LIO-SAM 5).
+    """
+
+    def __init__(
+        self,
+        *,
+        huber_k: float = 1.345,
+        relinearize_threshold: float = 0.01,
+        relinearize_skip: int = 1,
+        extra_updates: int = 5,
+    ) -> None:
+        if huber_k <= 0:
+            raise ValueError("huber_k must be positive")
+        self.huber_k = float(huber_k)
+        self.relinearize_threshold = float(relinearize_threshold)
+        self.relinearize_skip = int(relinearize_skip)
+        self.extra_updates = int(extra_updates)
+        self.edges: list[GraphEdge] = []
+        self.dropped_loops: list[tuple[int, int]] = []
+        self._n = 0
+        self._first_pose: np.ndarray | None = None
+        self._latest: dict[int, np.ndarray] = {}  # last estimate of recently added keys
+        self._isam = self._new_isam()
+        self._committed = self._graph()  # every factor iSAM2 has accepted (for rebuilds)
+        self._committed_edges = 0  # edges (in self.edges) covered by _committed
+        self._pending_factors: list[tuple[object, GraphEdge | None]] = []
+        self._pending_values: dict[int, np.ndarray] = {}
+        self._initial: dict[int, np.ndarray] = {}
+
+    # -- construction --------------------------------------------------------------------------
+
+    @staticmethod
+    def _graph():
+        import gtsam
+
+        return gtsam.NonlinearFactorGraph()
+
+    def _new_isam(self):
+        import gtsam
+
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.relinearize_threshold)
+        params.relinearizeSkip = self.relinearize_skip
+        return gtsam.ISAM2(params)
+
+    def __len__(self) -> int:
+        return self._n
+
+    @property
+    def loop_edges(self) -> list[GraphEdge]:
+        """Loop factors currently in the graph (dropped ones excluded)."""
+        return [e for e in self.edges if e.kind == "loop"]
+
+    def add_keyframe(
+        self,
+        index: int,
+        T_world_lidar: np.ndarray,
+        T_prev_curr: np.ndarray | None = None,
+        sigmas: np.ndarray | None = None,
+    ) -> None:
+        """Add keyframe ``index`` (must be ``len(self)``).
+
+        Args:
+            index: keyframe number, consecutive from 0.
+            T_world_lidar: (4,4) pose estimate; the prior for keyframe 0, otherwise used only when
+                no estimate of the previous keyframe is at hand.
+            T_prev_curr: (4,4) odometry from keyframe ``index-1`` to this one; default
+                ``inv(T_world_prev) @ T_world_lidar`` from the previous keyframe's given pose.
+            sigmas: (6,) odometry sigmas, GTSAM order (rad ×3, m ×3). Required for ``index > 0``.
+        """
+        import gtsam
+
+        if index != self._n:
+            raise ValueError(f"keyframes must be added in order: expected {self._n}, got {index}")
+        T_world_lidar = _check_pose(T_world_lidar, "T_world_lidar")
+        key = _symbol(index)
+        if index == 0:
+            noise = gtsam.noiseModel.Diagonal.Sigmas(_PRIOR_SIGMAS)
+            self._pending_factors.append((gtsam.PriorFactorPose3(key, gtsam.Pose3(T_world_lidar), noise), None))
+            self._first_pose = T_world_lidar
+            initial = T_world_lidar
+        else:
+            if sigmas is None:
+                raise ValueError("odometry sigmas are required for keyframes after the first")
+            sigmas = np.asarray(sigmas, dtype=np.float64)
+            if sigmas.shape != (6,) or not (sigmas > 0).all():
+                raise ValueError("sigmas must be six positive numbers (rot rad x3, trans m x3)")
+            if T_prev_curr is None:
+                T_prev_curr = np.linalg.solve(self._initial[index - 1], T_world_lidar)
+            T_prev_curr = _check_pose(T_prev_curr, "T_prev_curr")
+            noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+            factor = gtsam.BetweenFactorPose3(_symbol(index - 1), key, gtsam.Pose3(T_prev_curr), noise)
+            edge = GraphEdge(index - 1, index, T_prev_curr, np.diag(1.0 / sigmas**2), "odometry")
+            self.edges.append(edge)
+            self._pending_factors.append((factor, edge))
+            previous = self._latest_estimate(index - 1)
+            initial = previous @ T_prev_curr if previous is not None else T_world_lidar
+        self._pending_values[index] = initial
+        self._initial[index] = T_world_lidar
+        self._n += 1
+
+    def add_loop(self, query: int, match: int, T_match_query: np.ndarray, information: np.ndarray) -> None:
+        """Queue a robust loop factor between existing keyframes ``match`` and ``query``.
+
+        Args:
+            query: newer keyframe.
+            match: older keyframe.
+            T_match_query: (4,4) measured pose of ``query`` in ``match``'s frame.
+            information: (6,6) symmetric positive-definite information, GTSAM order (rot, trans).
+        """
+        import gtsam
+
+        for name, k in (("query", query), ("match", match)):
+            if not 0 <= k < self._n:
+                raise ValueError(f"loop {name} keyframe {k} is not in the graph ({self._n} keyframes)")
+        if query == match:
+            raise ValueError("a loop needs two different keyframes")
+        T_match_query = _check_pose(T_match_query, "T_match_query")
+        information = np.asarray(information, dtype=np.float64)
+        if information.shape != (6, 6) or not np.isfinite(information).all():
+            raise ValueError("information must be a finite (6,6) matrix")
+        information = 0.5 * (information + information.T)
+        if np.linalg.eigvalsh(information).min() <= 0:
+            raise ValueError("loop information must be positive definite")
+        noise = gtsam.noiseModel.Robust.Create(
+            gtsam.noiseModel.mEstimator.Huber.Create(self.huber_k),
+            gtsam.noiseModel.Gaussian.Information(information),
+        )
+        factor = gtsam.BetweenFactorPose3(_symbol(match), _symbol(query), gtsam.Pose3(T_match_query), noise)
+        edge = GraphEdge(int(match), int(query), T_match_query, information, "loop")
+        self.edges.append(edge)
+        self._pending_factors.append((factor, edge))
+
+    # -- solving ---------------------------------------------------------------------------------
+
+    def _isam_update(self, graph, values) -> None:
+        """One ``ISAM2.update`` call (a seam for tests that simulate a GTSAM failure)."""
+        self._isam.update(graph, values)
+
+    def _force_relinearize(self) -> None:
+        import gtsam
+
+        params = gtsam.ISAM2UpdateParams()
+        params.force_relinearize = True
+        self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
+
+    @staticmethod
+    def _values(poses: dict[int, np.ndarray]):
+        import gtsam
+
+        values = gtsam.Values()
+        for k, T in poses.items():
+            values.insert(_symbol(k), gtsam.Pose3(T))
+        return values
+
+    def update(self) -> list[tuple[int, int]]:
+        """Hand the pending factors and values to iSAM2; returns the (query, match) loops dropped.
+
+        Only the factors and values added since the last call are passed, then cleared.
+        """
+        if not self._pending_factors and not self._pending_values:
+            return []
+        factors, values = self._pending_factors, self._pending_values
+        self._pending_factors, self._pending_values = [], {}
+        has_loop = any(edge is not None and edge.kind == "loop" for _, edge in factors)
+        snapshot = self._estimate_dict() if has_loop else {}
+        graph = self._graph()
+        for factor, _ in factors:
+            graph.add(factor)
+        try:
+            self._isam_update(graph, self._values(values))
+        except RuntimeError as err:
+            if not has_loop:
+                raise
+            log.warning("pose graph: iSAM2 update failed (%s); retrying loop factors one by one", err)
+            return self._recover(factors, values, snapshot)
+        for factor, _ in factors:
+            self._committed.add(factor)
+        if has_loop:
+            for _ in range(self.extra_updates):
+                self._force_relinearize()
+        self._refresh_latest(values)
+        return []
+
+    def _estimate_dict(self) -> dict[int, np.ndarray]:
+        """Current estimate of every key iSAM2 holds, as 4x4 arrays."""
+        estimate = self._isam.calculateEstimate()
+        return {k: estimate.atPose3(_symbol(k)).matrix() for k in range(self._n) if estimate.exists(_symbol(k))}
+
+    def _recover(
+        self, factors: list, values: dict[int, np.ndarray], snapshot: dict[int, np.ndarray]
+    ) -> list[tuple[int, int]]:
+        """Rebuild iSAM2 from the accepted factors plus the new odometry, then add loops singly."""
+        odometry = [(f, e) for f, e in factors if e is None or e.kind != "loop"]
+        loops = [(f, e) for f, e in factors if e is not None and e.kind == "loop"]
+        estimate = dict(self._initial)
+        estimate.update(snapshot)
+        estimate.update(values)
+        graph = self._graph()
+        for i in range(self._committed.size()):
+            graph.add(self._committed.at(i))
+        for factor, _ in odometry:
+            graph.add(factor)
+        self._isam = self._new_isam()
+        self._isam.update(graph, self._values({k: estimate[k] for k in range(self._n)}))
+        for factor, _ in odometry:
+            self._committed.add(factor)
+        dropped = []
+        for factor, edge in loops:
+            single = self._graph()
+            single.add(factor)
+            try:
+                self._isam_update(single, self._values({}))
+            except RuntimeError as err:
+                log.warning("pose graph: loop %d -> %d dropped: %s", edge.target, edge.source, err)
+                dropped.append((edge.target, edge.source))
+                self.edges = [e for e in self.edges if e is not edge]
+                self.dropped_loops.append((edge.target, edge.source))
+                graph = self._graph()
+                for i in range(self._committed.size()):
+                    graph.add(self._committed.at(i))
+                self._isam = self._new_isam()
+                self._isam.update(graph, self._values({k: estimate[k] for k in range(self._n)}))
+                continue
+            self._committed.add(factor)
+        for _ in range(self.extra_updates):
+            self._force_relinearize()
+        self._refresh_latest(values)
+        return dropped
+
+    def _refresh_latest(self, values: dict[int, np.ndarray]) -> None:
+        if self._n:
+            last = self._n - 1
+            self._latest = {last: self._isam.calculateEstimatePose3(_symbol(last)).matrix()}
+
+    def _latest_estimate(self, k: int) -> np.ndarray | None:
+        if k in self._pending_values:
+            return self._pending_values[k]
+        return self._latest.get(k)
+
+    def optimize(self, extra_updates: int = 0) -> np.ndarray:
+        """Flush pending factors, optionally relinearise more, and return the (K,4,4) estimate."""
+        self.update()
+        for _ in range(extra_updates):
+            self._force_relinearize()
+        if self._n == 0:
+            return np.zeros((0, 4, 4))
+        estimate = self._isam.calculateEstimate()
+        poses = np.array([estimate.atPose3(_symbol(k)).matrix() for k in range(self._n)])
+        self._latest = {self._n - 1: poses[-1]}
+        return poses
+
+    # -- export ----------------------------------------------------------------------------------
+
+    def g2o_text(self, poses: np.ndarray | None = None) -> str:
+        """The graph in g2o text format (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, ``FIX 0``).
+
+        Vertices carry ``poses`` (default: the current estimate). Edge information is written as
+        the upper triangle of the 6x6 matrix in g2o's order (x, y, z, then rotation), i.e. the
+        GTSAM blocks swapped, as GTSAM's own ``writeG2o`` does; the robust kernel of loop edges is
+        not representable in the format and is omitted.
+        """
+        if poses is None:
+            poses = self.optimize()
+        poses = np.asarray(poses, dtype=np.float64)
+        if poses.shape != (self._n, 4, 4):
+            raise ValueError(f"expected ({self._n},4,4) poses, got {poses.shape}")
+        lines = []
+        for k, T in enumerate(poses):
+            lines.append(f"VERTEX_SE3:QUAT {k} " + " ".join(_pose_fields(T)))
+        if self._n:
+            lines.append("FIX 0")
+        order = [3, 4, 5, 0, 1, 2]
+        upper = np.triu_indices(6)
+        for edge in self.edges:
+            info = edge.information[np.ix_(order, order)][upper]
+            lines.append(
+                f"EDGE_SE3:QUAT {edge.source} {edge.target} "
+                + " ".join(_pose_fields(edge.T_source_target))
+                + " "
+                + " ".join(f"{v:.9g}" for v in info)
+            )
+        return "\n".join(lines) + "\n"
+
+
+def _pose_fields(T: np.ndarray) -> list[str]:
+    """x y z qx qy qz qw of a 4x4 transform."""
+    q = Rotation.from_matrix(T[:3, :3]).as_quat()  # (x, y, z, w)
+    return [f"{v:.9f}" for v in T[:3, 3]] + [f"{v:.9f}" for v in q]
