@@ -136,6 +136,7 @@ class MappingConfig:
     degeneracy_threshold: float = 100.0
     converge_rotation_deg: float = 0.05
     converge_translation_m: float = 0.0005
+    level_normal_z: float = 0.9  # planes this level inform only z, roll, pitch (0: off)
     robust_scale_m: float = 0.05  # Geman-McClure scale; 0 selects LeGO-LOAM's 1 - 0.9|r| weight
     keyframe_distance_m: float = 1.0  # LIO-SAM surroundingkeyframeAddingDistThreshold
     keyframe_angle_deg: float = 11.46  # LIO-SAM 0.2 rad

@@ -279,6 +279,7 @@ class SlamPipeline:
             used_twist = twist
         if refined.degenerate_axes:
             self.counts["degenerate_scans"] += 1
+
         return T_world_lidar, False
 
     def _is_keyframe(self, T_world_lidar: np.ndarray, raw: "_RawFeatures") -> bool:

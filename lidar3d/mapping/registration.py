@@ -259,6 +259,7 @@ def solve_pose(
     converge_translation_m: float = 0.0005,
     robust_scale_m: float = 0.0,
     row_weights: np.ndarray | None = None,
+    level_normal_z: float = 0.0,
 ) -> SolveResult:
     """Estimate ``T_target_source`` minimising the matched rows' residuals.
 
@@ -272,6 +273,12 @@ def solve_pose(
             positive value c selects the Geman-McClure kernel with scale c, whose rows with
             weight <= 0.1 (|r| > 3c) are dropped.
         row_weights: optional (N,) per-source-point multiplier of the robust weight.
+        level_normal_z: rows whose unit normal has ``|n_z|`` at or above this (level ground,
+            roofs) inform only z, roll and pitch: their x, y and yaw derivatives are dropped.
+            A level plane carries no information on those axes, but the small random tilts of
+            planes fitted to noisy scan lines turn thousands of ground rows into confident,
+            spurious x/y/yaw constraints that outvote a few real ones (a pole on open ground)
+            and that the eigenvalue test cannot flag. 0 disables it.
 
     Returns a :class:`SolveResult`; when there are fewer than ``min_rows`` rows on the first
     iteration, the initial guess is returned with ``iterations == 0``.
@@ -321,6 +328,9 @@ def solve_pose(
         pu = p[use]
         for a in range(3):
             J[:, 3 + a] = np.einsum("ij,ij->i", n, pu @ dR[a].T)
+        if level_normal_z > 0:
+            level = np.abs(n[:, 2]) >= level_normal_z
+            J[np.ix_(level, (0, 1, 5))] = 0.0
         w = weight[use]
         Jf = J[:, free] * w[:, None]
         rf = residual[use] * w

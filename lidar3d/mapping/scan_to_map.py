@@ -51,4 +51,5 @@ def register_to_submap(
         converge_rotation_deg=config.converge_rotation_deg,
         converge_translation_m=config.converge_translation_m,
         robust_scale_m=config.robust_scale_m,
+        level_normal_z=config.level_normal_z,
     )
