@@ -1,13 +1,17 @@
-# Two entry points for a fresh Debian/Ubuntu machine with Python 3.10+:
+# Entry points for a fresh Debian/Ubuntu machine with Python 3.10+:
 #   make demo   - simulate the demo scenario and run what the pipeline has on it
 #   make test   - run the test suite
-# Both create (or reuse) .venv and install everything the project needs, once.
+#   make bench  - the evaluation suite (eval/run_suite.py): lidar3d beside KISS-ICP and GenZ-ICP on
+#                 every simulated scenario; writes BENCHMARKS.md and eval/results/ (BENCH_ARGS to adjust)
+# Each creates (or reuses) .venv and installs everything it needs, once.
 
 PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 DEMO_OUT ?= demo_output
+BENCH_ARGS ?=
+EVAL_STAMP := $(VENV)/.installed-eval
 
 .PHONY: demo test bench clean system-deps
 
@@ -34,6 +38,15 @@ test: $(STAMP)
 demo: $(STAMP)
 	@bash scripts/ensure_system_deps.sh "$(PYTHON)"
 	$(VENV)/bin/lidar3d demo --out $(DEMO_OUT)
+
+# The peers and the profiler are the optional `eval` extra, installed only for the benchmark.
+$(EVAL_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e ".[eval]"
+	@touch $(EVAL_STAMP)
+
+bench: $(STAMP) $(EVAL_STAMP)
+	@bash scripts/ensure_system_deps.sh "$(PYTHON)"
+	$(PY) eval/run_suite.py $(BENCH_ARGS)
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache
