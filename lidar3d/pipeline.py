@@ -38,7 +38,7 @@ from lidar3d.mapping.se3 import exp_se3, invert
 from lidar3d.mapping.voxel import VoxelMap, voxel_downsample
 from lidar3d.records import Scan, Trajectory
 
-__all__ = ["ScanEstimate", "SlamResult", "SlamPipeline", "run_slam", "STAGES"]
+__all__ = ["ScanEstimate", "SlamResult", "SlamPipeline", "PreparedScan", "prepare_scan", "run_slam", "STAGES"]
 
 log = logging.getLogger(__name__)
 
@@ -145,8 +145,14 @@ class SlamPipeline:
 
     # -- driver -------------------------------------------------------------------------------
 
-    def process(self, scan: Scan) -> ScanEstimate | None:
-        """Estimate the pose of ``scan``; returns None when the scan is dropped (bad stamp)."""
+    def process(self, scan: Scan | PreparedScan) -> ScanEstimate | None:
+        """Estimate the pose of ``scan``; returns None when the scan is dropped (bad stamp).
+
+        ``scan`` may come already through the front end (:func:`prepare_scan`, which depends on
+        nothing but the scan, so an adapter may run it ahead in another process).
+        """
+        prepared = scan if isinstance(scan, PreparedScan) else None
+        scan = prepared.scan if prepared is not None else scan
         self._scan_index += 1
         index = self._scan_index
         if self.estimates and scan.stamp_ns <= self.estimates[-1].stamp_ns:
@@ -155,10 +161,10 @@ class SlamPipeline:
             log.warning("scan %d: %s stamp %d dropped", index, kind, scan.stamp_ns)
             return None
         timer = _StageTimer(self.timings)
-        front = run_front_end(scan, self.config)
-        for stage, ms in front.stage_ms.items():
+        prepared = prepared if prepared is not None else prepare_scan(scan, self.config)
+        for stage, ms in prepared.stage_ms.items():
             self.timings[stage].append(ms)
-        raw = _RawFeatures(front.features, _ground_cloud(front.segmentation))
+        raw = _RawFeatures(prepared.features, prepared.ground)
 
         previous = self.estimates[-1] if self.estimates else None
         dt_s = (scan.stamp_ns - previous.stamp_ns) * 1e-9 if previous else 0.0
@@ -360,6 +366,29 @@ def _ground_cloud(segmentation) -> FeatureCloud:
     idx = idx[idx >= 0]
     scan = segmentation.scan
     return FeatureCloud(scan.points[idx], scan.ring[idx], scan.time_offset_s[idx])
+
+
+@dataclass(frozen=True, slots=True)
+class PreparedScan:
+    """A scan with its front-end output: what :meth:`SlamPipeline.process` needs of the front end.
+
+    Attributes:
+        scan: the raw sweep.
+        features: its LeGO-LOAM feature set (lidar frame, not deskewed).
+        ground: every ground cell of its range image as a cloud.
+        stage_ms: front-end milliseconds per sub-stage.
+    """
+
+    scan: Scan
+    features: FeatureSet
+    ground: FeatureCloud
+    stage_ms: dict[str, float]
+
+
+def prepare_scan(scan: Scan, config: Config) -> PreparedScan:
+    """Run the front end on ``scan`` (a pure function of the scan and the configuration)."""
+    front = run_front_end(scan, config)
+    return PreparedScan(scan, front.features, _ground_cloud(front.segmentation), front.stage_ms)
 
 
 @dataclass(frozen=True, slots=True)

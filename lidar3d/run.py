@@ -31,6 +31,7 @@ from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import Lidar3dError
 from lidar3d.io.atomic import write_text_atomic
 from lidar3d.io.bag_reader import open_scan_source
+from lidar3d.prefetch import open_prepared_scans
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.trajectory_io import write_kitti, write_tum
 from lidar3d.mapping.dense_map import build_dense_map
@@ -117,6 +118,7 @@ def run_bag(
     on_scan: Callable[[int, int | None], None] | None = None,
     checkpoint_every_s: float = 10.0,
     map_checkpoint_every_s: float = 60.0,
+    prefetch: bool = True,
 ) -> RunOutcome:
     """Run SLAM over the bag(s) ``paths`` and write every output into ``out_dir``.
 
@@ -125,6 +127,8 @@ def run_bag(
         span_log: a NovAtel SPAN log to evaluate the trajectory against (report in ``eval/``).
         extrinsics: lidar-to-IMU extrinsic file for that evaluation.
         on_scan: called as ``on_scan(done, total)`` after each scan (progress display).
+        prefetch: read the bag and run the front end in a second process, a few scans ahead
+            (uses a second core; turn off when several runs share the cores, as in a batch).
     """
     config = config or Config()
     out = Path(out_dir)
@@ -141,24 +145,15 @@ def run_bag(
     extra: dict = {}
     finished = False
     try:
-        with open_scan_source(paths, config) as source:
+        with open_prepared_scans(paths, config, start=start, max_scans=max_scans, prefetch=prefetch) as stream:
             # Only a bag that opens gets an output folder (created here, with a clear error).
             write_text_atomic(out / "config.toml", config_to_toml(config))
-            topic = source.topic
-            total = max(0, len(source) - start)
-            total = min(total, max_scans) if max_scans is not None else total
-            scans = iter(source)
-            for _ in range(start):
-                if next(scans, None) is None:
-                    break
+            topic = stream.topic
+            total = stream.total
             done = 0
-            while max_scans is None or done < max_scans:
-                t0 = time.perf_counter()
-                scan = next(scans, None)
-                if scan is None:
-                    break
-                read_ms.append((time.perf_counter() - t0) * 1e3)
-                pipeline.process(scan)
+            for prepared, read_scan_ms in stream:
+                read_ms.append(read_scan_ms)
+                pipeline.process(prepared)
                 done += 1
                 if on_scan is not None:
                     on_scan(done, total)
@@ -171,13 +166,13 @@ def run_bag(
                     last_checkpoint = now
                     if with_map:
                         last_map_checkpoint = now
-            stats = source.stats
-            extra["input_stats"] = {
-                "points_kept": stats.n_points_kept,
-                "nonfinite_dropped": stats.n_nonfinite,
-                "below_min_range_dropped": stats.n_below_min_range,
-                "messages_lost": stats.n_lost_messages,
-            }
+        stats = stream.stats
+        extra["input_stats"] = {
+            "points_kept": stats.n_points_kept,
+            "nonfinite_dropped": stats.n_nonfinite,
+            "below_min_range_dropped": stats.n_below_min_range,
+            "messages_lost": stats.n_lost_messages,
+        }
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
         pipeline.finish()

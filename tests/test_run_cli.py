@@ -305,7 +305,7 @@ def test_crash_in_the_pipeline_keeps_partial_outputs_and_reraises(simulated, tru
     register = pipeline_module.register_to_submap
 
     def counting_process(self, scan):
-        processed.append(scan.stamp_ns)
+        processed.append(scan.scan.stamp_ns if hasattr(scan, "scan") else scan.stamp_ns)
         return process(self, scan)
 
     def failing_register(*args, **kwargs):
