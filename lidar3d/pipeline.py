@@ -208,11 +208,17 @@ class SlamPipeline:
             self._publish_keyframe(pending, twist)
         elif pending.is_keyframe:
             # The first keyframe was added at once (no motion known then); deskew it properly.
-            self.submap.replace_clouds(len(self.submap) - 1, *self._mapping_clouds(pending.raw.deskewed(twist)))
+            self.submap.replace_clouds(len(self.submap) - 1, *self._keyframe_clouds(pending.raw, twist))
         add_scan_to_map(self.dense_map, pending.scan, pending.T_world_lidar, twist, self.config)
 
+    def _keyframe_clouds(self, raw: "_RawFeatures", twist: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A keyframe's clouds, deskewed with ``twist``; kept for the whole run, so stored in
+        float32 (sub-millimetre within the lidar's range)."""
+        corner, surf = self._mapping_clouds(raw.deskewed(twist))
+        return corner.astype(np.float32), surf.astype(np.float32)
+
     def _publish_keyframe(self, pending: "_PendingScan", twist: np.ndarray) -> None:
-        corner, surf = self._mapping_clouds(pending.raw.deskewed(twist))
+        corner, surf = self._keyframe_clouds(pending.raw, twist)
         self.submap.add(
             Keyframe(len(self.submap), pending.index, pending.scan.stamp_ns, pending.T_world_lidar, corner, surf)
         )

@@ -138,7 +138,6 @@ class LoopCloser:
         self._odometry_sigmas = np.array(
             [np.radians(config.odometry_sigma_rotation_deg)] * 3 + [config.odometry_sigma_translation_m] * 3
         )
-        self._clouds: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
         self._path_m: list[float] = []  # travelled distance at each keyframe (given poses)
         self._stamps_ns: list[int] = []
         self._last_accepted_query = -(10**9)
@@ -148,18 +147,16 @@ class LoopCloser:
         """The accepted candidates (the loop closures)."""
         return [c for c in self.candidates if c.accepted]
 
-    def _cloud(self, keyframe) -> np.ndarray:
-        """The keyframe's corner and surface points, fused (lidar frame); cached per keyframe."""
-        k = keyframe.index
-        while len(self._clouds) <= k:
-            self._clouds.append((None, None, np.zeros((0, 3))))
-        corner, surf, cloud = self._clouds[k]
-        if corner is keyframe.corner_points and surf is keyframe.surf_points:
-            return cloud
-        parts = [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in (keyframe.corner_points, keyframe.surf_points)]
-        cloud = np.concatenate(parts)
-        self._clouds[k] = (keyframe.corner_points, keyframe.surf_points, cloud)
-        return cloud
+    @staticmethod
+    def _cloud(keyframe) -> np.ndarray:
+        """The keyframe's corner and surface points, fused (lidar frame, float64).
+
+        Made on demand rather than cached: only the query and one match neighbourhood are needed
+        per verification, while a cache would double the keyframes' memory on long drives.
+        """
+        return np.concatenate(
+            [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in (keyframe.corner_points, keyframe.surf_points)]
+        )
 
     def _add_keyframes(self, keyframes: Sequence, poses: np.ndarray) -> None:
         for k in range(len(self.graph), len(keyframes)):

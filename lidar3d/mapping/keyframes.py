@@ -23,8 +23,8 @@ class Keyframe:
         scan_index: index of the scan in the input stream.
         stamp_ns: scan stamp.
         T_world_lidar: (4,4) pose at selection time (corrections live in the pose graph).
-        corner_points: (M,3) downsampled edge features, lidar frame.
-        surf_points: (K,3) downsampled planar features and outliers, lidar frame.
+        corner_points: (M,3) downsampled edge features, lidar frame (float32 in the pipeline).
+        surf_points: (K,3) downsampled planar features, outliers and ground, lidar frame.
     """
 
     index: int
@@ -112,7 +112,10 @@ class Submap:
             return cached
         kf = self.keyframes[k]
         T = self._poses[k]
-        clouds = (transform_points(T, kf.corner_points), transform_points(T, kf.surf_points))
+        clouds = (
+            transform_points(T, kf.corner_points.astype(np.float64)),
+            transform_points(T, kf.surf_points.astype(np.float64)),
+        )
         self._cache[k] = clouds
         if len(self._cache) > self.cache_size:
             self._cache.popitem(last=False)

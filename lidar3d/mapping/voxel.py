@@ -47,7 +47,7 @@ class VoxelMap:
     operations. Memory grows with the mapped volume, not with the number of scans.
     """
 
-    def __init__(self, voxel_m: float, merge_every_points: int = 2_000_000) -> None:
+    def __init__(self, voxel_m: float, merge_every_points: int = 500_000) -> None:
         if voxel_m <= 0:
             raise ValueError("voxel_m must be positive")
         self.voxel_m = float(voxel_m)
