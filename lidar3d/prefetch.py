@@ -27,20 +27,26 @@ __all__ = ["PreparedScanStream", "InlineScanStream", "open_prepared_scans"]
 _POLL_S = 0.5
 
 
+def _prepared(source, config: Config, start: int, stop: int | None) -> Iterator[tuple[PreparedScan, float]]:
+    """Scans ``start`` to ``stop`` of an open source through the front end, with read times (ms)."""
+    scans = itertools.islice(iter(source), start, stop)
+    while True:
+        t0 = time.perf_counter()
+        scan = next(scans, None)
+        if scan is None:
+            return
+        read_ms = (time.perf_counter() - t0) * 1e3
+        yield prepare_scan(scan, config), read_ms
+
+
 def _produce(paths: list[str], config: Config, start: int, stop: int | None, out: multiprocessing.Queue) -> None:
     """Child process: read, prepare and send every scan, then the read statistics."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop
     try:
         with open_scan_source(paths, config) as source:
             out.put(("open", source.topic, len(source)))
-            scans = itertools.islice(iter(source), start, stop)
-            while True:
-                t0 = time.perf_counter()
-                scan = next(scans, None)
-                if scan is None:
-                    break
-                read_ms = (time.perf_counter() - t0) * 1e3
-                out.put(("scan", prepare_scan(scan, config), read_ms))
+            for prepared, read_ms in _prepared(source, config, start, stop):
+                out.put(("scan", prepared, read_ms))
         out.put(("end", source.stats))
     except BaseException as err:  # noqa: BLE001 - every failure is handed to the parent
         out.put(("error", err))
@@ -145,14 +151,7 @@ class InlineScanStream:
         return self
 
     def __iter__(self) -> Iterator[tuple[PreparedScan, float]]:
-        scans = itertools.islice(iter(self._source), self.start, self.stop)
-        while True:
-            t0 = time.perf_counter()
-            scan = next(scans, None)
-            if scan is None:
-                break
-            read_ms = (time.perf_counter() - t0) * 1e3
-            yield prepare_scan(scan, self.config), read_ms
+        yield from _prepared(self._source, self.config, self.start, self.stop)
         self.stats = self._source.stats
 
     def __exit__(self, *exc_info: object) -> None:

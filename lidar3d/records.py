@@ -11,10 +11,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Scan", "Trajectory"]
+__all__ = ["Scan", "Trajectory", "readonly"]
 
 
-def _readonly(array: np.ndarray) -> np.ndarray:
+def readonly(array: np.ndarray) -> np.ndarray:
+    """Mark ``array`` read-only (records hand out views that must not be changed) and return it."""
     array.flags.writeable = False
     return array
 
@@ -50,10 +51,10 @@ class Scan:
             if array.shape != (n,):
                 raise ValueError(f"Scan.{name} must be ({n},), got {array.shape}")
         object.__setattr__(self, "stamp_ns", int(self.stamp_ns))
-        object.__setattr__(self, "points", _readonly(points))
-        object.__setattr__(self, "intensity", _readonly(intensity))
-        object.__setattr__(self, "ring", _readonly(ring))
-        object.__setattr__(self, "time_offset_s", _readonly(time_offset_s))
+        object.__setattr__(self, "points", readonly(points))
+        object.__setattr__(self, "intensity", readonly(intensity))
+        object.__setattr__(self, "ring", readonly(ring))
+        object.__setattr__(self, "time_offset_s", readonly(time_offset_s))
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -95,8 +96,8 @@ class Trajectory:
             raise ValueError(f"Trajectory.T_world_lidar must be ({stamps.shape[0]}, 4, 4), got {poses.shape}")
         if stamps.size > 1 and np.any(np.diff(stamps) <= 0):
             raise ValueError("Trajectory.stamps_ns must be strictly increasing")
-        object.__setattr__(self, "stamps_ns", _readonly(stamps))
-        object.__setattr__(self, "T_world_lidar", _readonly(poses))
+        object.__setattr__(self, "stamps_ns", readonly(stamps))
+        object.__setattr__(self, "T_world_lidar", readonly(poses))
 
     def __len__(self) -> int:
         return int(self.stamps_ns.shape[0])

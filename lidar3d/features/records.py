@@ -6,12 +6,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidar3d.records import readonly
+
 __all__ = ["FeatureCloud", "FeatureSet", "Smoothness"]
 
 
-def _readonly(array: np.ndarray) -> np.ndarray:
-    array.flags.writeable = False
-    return array
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,9 +40,9 @@ class FeatureCloud:
         for name, array in (("ring", ring), ("time_offset_s", time_offset_s)):
             if array.shape != (n,):
                 raise ValueError(f"FeatureCloud.{name} must be ({n},), got {array.shape}")
-        object.__setattr__(self, "points", _readonly(points))
-        object.__setattr__(self, "ring", _readonly(ring))
-        object.__setattr__(self, "time_offset_s", _readonly(time_offset_s))
+        object.__setattr__(self, "points", readonly(points))
+        object.__setattr__(self, "ring", readonly(ring))
+        object.__setattr__(self, "time_offset_s", readonly(time_offset_s))
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -110,9 +109,9 @@ class Smoothness:
     def __post_init__(self) -> None:
         curvature = np.asarray(self.curvature, dtype=np.float64)
         n = curvature.shape[0]
-        object.__setattr__(self, "curvature", _readonly(curvature))
+        object.__setattr__(self, "curvature", readonly(curvature))
         for name, dtype in (("in_section", bool), ("section", np.int64), ("pickable", bool)):
             array = np.asarray(getattr(self, name), dtype=dtype)
             if array.shape != (n,):
                 raise ValueError(f"Smoothness.{name} must be ({n},), got {array.shape}")
-            object.__setattr__(self, name, _readonly(array))
+            object.__setattr__(self, name, readonly(array))

@@ -71,16 +71,19 @@ class RingIndexedCloud:
                 best_idx[sel[better]] = g[better]
         return best_idx, best_dist
 
-    def match_lines(self, queries: np.ndarray, max_dist_m: float = 5.0) -> MatchRows:
-        """Point-to-line rows for ``queries`` (already in this cloud's frame)."""
+    def _nearest(self, queries: np.ndarray, max_dist_m: float) -> tuple[np.ndarray, np.ndarray]:
+        """(query rows with a point within ``max_dist_m``, index of that nearest point j)."""
         if self.tree is None or len(queries) == 0:
-            return MatchRows.empty()
+            return np.zeros(0, np.int64), np.zeros(0, np.int64)
         dist, j = self.tree.query(queries, k=1, distance_upper_bound=max_dist_m)
         ok = np.isfinite(dist)
-        q_idx = np.flatnonzero(ok)
+        return np.flatnonzero(ok), j[ok]
+
+    def match_lines(self, queries: np.ndarray, max_dist_m: float = 5.0) -> MatchRows:
+        """Point-to-line rows for ``queries`` (already in this cloud's frame)."""
+        q_idx, j = self._nearest(queries, max_dist_m)
         if q_idx.size == 0:
             return MatchRows.empty()
-        j = j[ok]
         ring_j = self.ring[j]
         l_lower, d_lower = self._nearest_on_rings(queries[q_idx], range(-2, 0), ring_j, j, max_dist_m)
         l_upper, d_upper = self._nearest_on_rings(queries[q_idx], range(1, 3), ring_j, j, max_dist_m)
@@ -96,14 +99,9 @@ class RingIndexedCloud:
 
     def match_planes(self, queries: np.ndarray, max_dist_m: float = 5.0) -> MatchRows:
         """Point-to-plane rows for ``queries`` (already in this cloud's frame)."""
-        if self.tree is None or len(queries) == 0:
-            return MatchRows.empty()
-        dist, j = self.tree.query(queries, k=1, distance_upper_bound=max_dist_m)
-        ok = np.isfinite(dist)
-        q_idx = np.flatnonzero(ok)
+        q_idx, j = self._nearest(queries, max_dist_m)
         if q_idx.size == 0:
             return MatchRows.empty()
-        j = j[ok]
         ring_j = self.ring[j]
         l_idx, _ = self._nearest_on_rings(queries[q_idx], range(-1, 1), ring_j, j, max_dist_m)
         m_idx, _ = self._nearest_on_rings(queries[q_idx], range(1, 3), ring_j, j, max_dist_m)

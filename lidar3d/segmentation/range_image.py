@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.config import SegmentationConfig, SensorConfig
-from lidar3d.records import Scan
+from lidar3d.records import Scan, readonly
 from lidar3d.sensors import SensorModel
 
 __all__ = ["RangeImage", "project_scan"]
@@ -24,9 +24,6 @@ __all__ = ["RangeImage", "project_scan"]
 log = logging.getLogger(__name__)
 
 
-def _readonly(array: np.ndarray) -> np.ndarray:
-    array.flags.writeable = False
-    return array
 
 
 @dataclass(frozen=True, slots=True)
@@ -61,10 +58,10 @@ class RangeImage:
             raise ValueError(f"RangeImage.points must be ({n_rows}, {n_columns}, 3), got {points.shape}")
         if elevation.shape != (n_rows,):
             raise ValueError(f"RangeImage.row_elevation_rad must be ({n_rows},), got {elevation.shape}")
-        object.__setattr__(self, "range_m", _readonly(range_m))
-        object.__setattr__(self, "point_index", _readonly(point_index))
-        object.__setattr__(self, "points", _readonly(points))
-        object.__setattr__(self, "row_elevation_rad", _readonly(elevation))
+        object.__setattr__(self, "range_m", readonly(range_m))
+        object.__setattr__(self, "point_index", readonly(point_index))
+        object.__setattr__(self, "points", readonly(points))
+        object.__setattr__(self, "row_elevation_rad", readonly(elevation))
         object.__setattr__(self, "azimuth_resolution_rad", float(self.azimuth_resolution_rad))
 
     @property

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.config import SegmentationConfig, SensorConfig
-from lidar3d.records import Scan
+from lidar3d.records import Scan, readonly
 from lidar3d.segmentation.clustering import cluster_cells
 from lidar3d.segmentation.ground import ground_row_count, mark_ground
 from lidar3d.segmentation.range_image import RangeImage, project_scan
@@ -22,9 +22,6 @@ __all__ = ["Segmentation", "segment_scan", "assemble_segmentation", "usable_rows
 log = logging.getLogger(__name__)
 
 
-def _readonly(array: np.ndarray) -> np.ndarray:
-    array.flags.writeable = False
-    return array
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,7 +74,7 @@ class Segmentation:
             array = np.asarray(getattr(self, name), dtype=dtype)
             if array.shape != shape:
                 raise ValueError(f"Segmentation.{name} must be {shape}, got {array.shape}")
-            object.__setattr__(self, name, _readonly(array))
+            object.__setattr__(self, name, readonly(array))
         n = np.asarray(self.scan_index).shape[0]
         for name, dtype, tail in (
             ("scan_index", np.int64, ()),
@@ -90,20 +87,20 @@ class Segmentation:
             array = np.asarray(getattr(self, name), dtype=dtype)
             if array.shape != (n,) + tail:
                 raise ValueError(f"Segmentation.{name} must be {(n,) + tail}, got {array.shape}")
-            object.__setattr__(self, name, _readonly(array))
+            object.__setattr__(self, name, readonly(array))
         for name in ("ring_start", "ring_end"):
             array = np.asarray(getattr(self, name), dtype=np.int64)
             if array.shape != (shape[0],):
                 raise ValueError(f"Segmentation.{name} must be ({shape[0]},), got {array.shape}")
-            object.__setattr__(self, name, _readonly(array))
+            object.__setattr__(self, name, readonly(array))
         outliers = np.asarray(self.outlier_scan_index, dtype=np.int64)
         outlier_row = np.asarray(self.outlier_row, dtype=np.int64)
         if outliers.ndim != 1 or outlier_row.shape != outliers.shape:
             raise ValueError(
                 f"Segmentation.outlier_scan_index and outlier_row must be (K,), got {outliers.shape}, {outlier_row.shape}"
             )
-        object.__setattr__(self, "outlier_scan_index", _readonly(outliers))
-        object.__setattr__(self, "outlier_row", _readonly(outlier_row))
+        object.__setattr__(self, "outlier_scan_index", readonly(outliers))
+        object.__setattr__(self, "outlier_row", readonly(outlier_row))
 
     def __len__(self) -> int:
         """Number of points in the segmented cloud."""

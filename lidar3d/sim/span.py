@@ -34,6 +34,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidar3d.errors import SimulationError
+from lidar3d.gnss.enu import R_enu_ecef
 from lidar3d.gnss.attitude import span_from_R_enu_vehicle
 from lidar3d.gnss.crc import novatel_crc32
 
@@ -44,7 +45,6 @@ __all__ = [
     "GPS_EPOCH_UNIX_S",
     "gps_week_seconds",
     "enu_to_geodetic",
-    "R_enu_from_ecef",
     "span_log_lines",
     "degraded_window_ns",
 ]
@@ -134,20 +134,6 @@ def gps_week_seconds(unix_ns: np.ndarray, leap_seconds: int) -> tuple[np.ndarray
     """GPS week and nanoseconds of week for UNIX (UTC) times in integer nanoseconds."""
     gps_ns = np.asarray(unix_ns, dtype=np.int64) - GPS_EPOCH_UNIX_S * 1_000_000_000 + leap_seconds * 1_000_000_000
     return gps_ns // _WEEK_NS, gps_ns % _WEEK_NS
-
-
-def R_enu_from_ecef(latitude_deg, longitude_deg) -> np.ndarray:
-    """(..., 3, 3) rotation taking ECEF vectors into the local ENU frame at the given place."""
-    lat = np.deg2rad(np.asarray(latitude_deg, float))
-    lon = np.deg2rad(np.asarray(longitude_deg, float))
-    sl, cl, so, co = np.sin(lat), np.cos(lat), np.sin(lon), np.cos(lon)
-    zero = np.zeros_like(lat)
-    rows = [
-        np.stack([-so, co, zero], axis=-1),
-        np.stack([-sl * co, -sl * so, cl], axis=-1),
-        np.stack([cl * co, cl * so, sl], axis=-1),
-    ]
-    return np.stack(rows, axis=-2)
 
 
 @functools.lru_cache(maxsize=8)
@@ -267,7 +253,7 @@ def span_log_lines(
     origin = params.origin
     imu_enu = poses[:, :3, 3] + position_error
     lat, lon, h_ell = enu_to_geodetic(imu_enu, origin)
-    R_local_origin = R_enu_from_ecef(lat, lon) @ R_enu_from_ecef(origin.latitude_deg, origin.longitude_deg).T
+    R_local_origin = R_enu_ecef(lat, lon) @ R_enu_ecef(origin.latitude_deg, origin.longitude_deg).T
     roll, pitch, azimuth = span_from_R_enu_vehicle(R_local_origin @ poses[:, :3, :3])
     roll = roll + attitude_error[:, 0]
     pitch = pitch + attitude_error[:, 1]
