@@ -1,8 +1,8 @@
 """Peak memory of `lidar3d run` on a 1,000-scan and a 3,000-scan VLP-16 bag.
 
-The bags are made from the simulator's `loop` scenario driven several times round (its scans
-repeated with stamps carried on; the ~1 m gap where the drive ends near its start is crossed
-like any other step). Each run is a separate `lidar3d run` process; the peak is the largest sum
+The bags are made from the simulator's `loop` scenario driven several times round: one lap is
+the scans from the start to the scan whose pose comes back nearest to the first one (a few
+centimetres away), and laps are repeated with their stamps carried on. Each run is a separate `lidar3d run` process; the peak is the largest sum
 of the resident set sizes of that process and its children (the prefetch process), sampled
 every 0.2 s. Usage:
 
@@ -19,6 +19,8 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+
+import numpy as np
 
 from lidar3d.io.bag_writer import write_scan_bag
 from lidar3d.records import Scan
@@ -46,10 +48,13 @@ def _tree_rss_kib(pid: int) -> int:
 def make_bag(path: Path, n_scans: int) -> None:
     sim = Simulation("loop", seed=0)
     period = sim.scan_period_ns
+    positions = sim.ground_truth.positions_m
+    half = len(sim) // 2
+    lap = half + int(np.argmin(np.linalg.norm(positions[half:] - positions[0], axis=1)))
 
     def scans():
         for i in range(n_scans):
-            s = sim.scan(i % len(sim)).scan
+            s = sim.scan(i % lap).scan
             yield Scan(sim.stamps_ns[0] + i * period, s.points, s.intensity, s.ring, s.time_offset_s)
 
     write_scan_bag(path, scans(), storage="ros1")
