@@ -9,6 +9,7 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+TEST_STAMP := $(VENV)/.installed-test
 DEMO_OUT ?= demo_output
 BENCH_ARGS ?=
 EVAL_STAMP := $(VENV)/.installed-eval
@@ -28,11 +29,16 @@ $(PY):
 $(STAMP): pyproject.toml | $(PY)
 	@bash scripts/ensure_system_deps.sh "$(PYTHON)"
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[test]"
+	$(PY) -m pip install --quiet -e .
 	@touch $(STAMP)
 
-test: $(STAMP)
-	@bash scripts/ensure_system_deps.sh "$(PYTHON)"
+# The test extra (pytest, evo as an independent metric oracle) and Ray for the batch engine test.
+$(TEST_STAMP): pyproject.toml $(STAMP)
+	$(PY) -m pip install --quiet -e ".[test,ray]"
+	@touch $(TEST_STAMP)
+
+test: $(TEST_STAMP)
+	@bash scripts/ensure_system_deps.sh "$(PYTHON)" test
 	$(PY) -m pytest -q
 
 demo: $(STAMP)

@@ -1,0 +1,184 @@
+"""Progress across the bags of a batch: bookkeeping (:class:`BatchProgress`) and a stderr display
+(:class:`ProgressDisplay`, used by the CLI).
+
+Overall speed is scans per second of wall time over the bags processed in this run (bags reused
+from an earlier run do not count). The time left is estimated from bytes: the share of the bags'
+total size processed so far (finished bags whole, running bags by their share of scans done) per
+second of wall time, applied to the bytes still to go. Bag sizes are known up front, scan counts
+only once a bag is opened; bytes are the better common measure.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Mapping
+from typing import TextIO
+
+from lidar3d.batch.jobs import JobResult, JobStatus
+
+__all__ = ["BatchProgress", "ProgressDisplay", "format_duration"]
+
+
+def format_duration(seconds: float) -> str:
+    """``"42 s"``, ``"3 min 20 s"``, ``"2 h 05 min"``."""
+    seconds = max(0.0, float(seconds))
+    if seconds < 60:
+        return f"{seconds:.0f} s"
+    if seconds < 3600:
+        return f"{int(seconds // 60)} min {int(seconds % 60):02d} s"
+    return f"{int(seconds // 3600)} h {int(seconds % 3600 // 60):02d} min"
+
+
+class BatchProgress:
+    """Counts and rates of a batch while it runs.
+
+    Args:
+        sizes: bytes of every bag to process in this run, by name.
+        up_to_date: number of bags reused from an earlier run.
+    """
+
+    def __init__(self, sizes: Mapping[str, int], up_to_date: int = 0) -> None:
+        self.sizes = dict(sizes)
+        self.up_to_date = up_to_date
+        self.start = time.perf_counter()
+        self.running: dict[str, tuple[int, int | None]] = {}
+        self.results: dict[str, JobResult] = {}
+        self.scans_finished = 0
+
+    @property
+    def total(self) -> int:
+        """All bags of the batch (including those up to date)."""
+        return len(self.sizes) + self.up_to_date
+
+    @property
+    def finished(self) -> int:
+        """Bags with a final state: done, failed, interrupted, or up to date."""
+        return len(self.results) + self.up_to_date
+
+    def count(self, status: JobStatus) -> int:
+        return sum(1 for r in self.results.values() if r.status is status)
+
+    def started(self, name: str) -> None:
+        self.running.setdefault(name, (0, None))
+
+    def scan(self, name: str, done: int, total: int | None) -> None:
+        if name not in self.results:
+            self.running[name] = (done, total)
+
+    def finished_job(self, result: JobResult) -> None:
+        self.running.pop(result.name, None)
+        self.results[result.name] = result
+        if result.summary:
+            self.scans_finished += int(result.summary.get("scans", 0))
+
+    @property
+    def elapsed_s(self) -> float:
+        return time.perf_counter() - self.start
+
+    @property
+    def scans_done(self) -> int:
+        """Scans processed in this run, including those of running bags."""
+        return self.scans_finished + sum(done for done, _ in self.running.values())
+
+    @property
+    def scans_per_s(self) -> float:
+        elapsed = self.elapsed_s
+        return self.scans_done / elapsed if elapsed > 0 else 0.0
+
+    def _bytes_done(self) -> float:
+        done = sum(self.sizes.get(name, 0) for name in self.results)
+        for name, (scans, total) in self.running.items():
+            if total:
+                done += self.sizes.get(name, 0) * min(scans / total, 1.0)
+        return done
+
+    @property
+    def eta_s(self) -> float | None:
+        """Estimated seconds left, or None before anything could be measured."""
+        done = self._bytes_done()
+        total = sum(self.sizes.values())
+        elapsed = self.elapsed_s
+        if done <= 0 or elapsed <= 0:
+            return None
+        return max(total - done, 0.0) / (done / elapsed)
+
+    def line(self) -> str:
+        """One status line: bags finished, running, scans/s, time left."""
+        text = f"batch: {self.finished}/{self.total} bags"
+        parts = []
+        if self.up_to_date:
+            parts.append(f"{self.up_to_date} up to date")
+        failed = self.count(JobStatus.FAILED)
+        if failed:
+            parts.append(f"{failed} failed")
+        if parts:
+            text += f" ({', '.join(parts)})"
+        if self.running:
+            text += f", {len(self.running)} running"
+        text += f", {self.scans_per_s:.1f} scans/s"
+        eta = self.eta_s
+        if eta is not None and self.finished < self.total:
+            text += f", about {format_duration(eta)} left"
+        return text
+
+
+def _describe(result: JobResult) -> str:
+    s = result.summary or {}
+    if result.status is JobStatus.DONE:
+        text = (
+            f"{s.get('scans', 0)} scans, {s.get('length_m', 0.0):.1f} m, {result.wall_s:.1f} s "
+            f"({s.get('scans_per_s', 0.0):.1f} scans/s)"
+        )
+        return text + (f"; {result.note}" if result.note else "")
+    return result.error or ""
+
+
+class ProgressDisplay:
+    """Prints one line per finished bag and a status line to ``stream`` (stderr by default).
+
+    On a terminal the status line is redrawn in place (at most every 0.2 s); on a pipe or file it
+    is printed every ``log_every_s`` seconds.
+    """
+
+    def __init__(self, progress: BatchProgress, stream: TextIO | None = None, log_every_s: float = 10.0) -> None:
+        self.progress = progress
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.log_every_s = log_every_s
+        self._last_draw = 0.0
+        self._drawn = False
+
+    def _clear(self) -> None:
+        if self.tty and self._drawn:
+            self.stream.write("\r" + " " * 100 + "\r")
+            self._drawn = False
+
+    def _draw(self, force: bool = False) -> None:
+        now = time.perf_counter()
+        if not force and now - self._last_draw < (0.2 if self.tty else self.log_every_s):
+            return
+        self._last_draw = now
+        if self.tty:
+            self.stream.write("\r" + self.progress.line()[:100].ljust(100))
+            self._drawn = True
+        else:
+            self.stream.write(self.progress.line() + "\n")
+        self.stream.flush()
+
+    def update(self) -> None:
+        """Redraw the status line if it is time to."""
+        self._draw()
+
+    def finished(self, result: JobResult) -> None:
+        """Print the line of a finished bag, then the status line."""
+        self._clear()
+        p = self.progress
+        label = result.status.value if result.status is not JobStatus.FAILED else "FAILED"
+        self.stream.write(f"[{p.finished}/{p.total}] {label:<11} {result.name}: {_describe(result)}\n")
+        self._draw(force=self.tty)
+
+    def close(self) -> None:
+        self._clear()
+        self.stream.write(self.progress.line() + "\n")
+        self.stream.flush()

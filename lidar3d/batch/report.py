@@ -1,0 +1,327 @@
+"""The batch report: ``summary.csv``, ``summary.json`` and ``report.html`` in the batch folder.
+
+One row per bag (:data:`ROW_FIELDS`). The HTML page is self-contained (inline CSS and JavaScript,
+no network): a sortable table (click a column header; the order is kept in the address as
+``#sort=<column>:asc|desc``, so a sorted view can be bookmarked or opened directly), links to
+each bag's output folder and evaluation plots (relative, so the whole batch folder can be moved
+or served as it is). Every file is written atomically.
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import io
+import json
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from lidar3d.io.atomic import write_text_atomic
+
+__all__ = ["ROW_FIELDS", "ReportPaths", "bag_row", "write_report"]
+
+ROW_FIELDS = (
+    "name",
+    "status",
+    "scans",
+    "keyframes",
+    "length_m",
+    "duration_s",
+    "runtime_s",
+    "scans_per_s",
+    "loop_closures",
+    "ate_rmse_m",
+    "rpe_rmse_m",
+    "rpe_kitti_percent",
+    "map_points",
+    "warnings",
+    "span_log",
+    "span_match",
+    "bag",
+    "output",
+    "plots",
+    "error",
+    "note",
+    "fingerprint",
+)
+
+# (field, header, kind) of the HTML table; kind "num" sorts numerically, empty cells last.
+_COLUMNS = (
+    ("name", "bag", "text"),
+    ("status", "status", "text"),
+    ("scans", "scans", "num"),
+    ("length_m", "length [m]", "num"),
+    ("runtime_s", "runtime [s]", "num"),
+    ("scans_per_s", "scans/s", "num"),
+    ("loop_closures", "loop closures", "num"),
+    ("ate_rmse_m", "ATE RMSE [m]", "num"),
+    ("rpe_rmse_m", "RPE {rpe} [m]", "num"),
+    ("rpe_kitti_percent", "KITTI RPE [%]", "num"),
+    ("span_log", "SPAN log", "text"),
+    ("plots", "plots", "text"),
+    ("error", "error / note", "text"),
+)
+
+
+@dataclass(frozen=True, slots=True)
+class ReportPaths:
+    csv: Path
+    json: Path
+    html: Path
+
+
+def _number(value: Any) -> float | None:
+    if isinstance(value, bool) or value is None:
+        return None
+    if isinstance(value, (int, float)) and math.isfinite(value):
+        return value
+    return None
+
+
+def _rmse(stats: Any) -> float | None:
+    return _number(stats.get("rmse")) if isinstance(stats, Mapping) else None
+
+
+def _loop_closures(summary: Mapping[str, Any]) -> int | None:
+    for source in (summary, summary.get("counts") or {}):
+        value = source.get("loop_closures") if isinstance(source, Mapping) else None
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            return int(value)
+        if isinstance(value, list):
+            return len(value)
+    return None
+
+
+def _rpe(eval_report: Mapping[str, Any] | None, distance_m: float | None) -> tuple[float | None, float | None]:
+    if not eval_report:
+        return None, None
+    kitti = eval_report.get("rpe_kitti") or {}
+    kitti_pct = _number(kitti.get("translation_percent")) if isinstance(kitti, Mapping) else None
+    by_distance = None
+    for entry in eval_report.get("rpe_distance") or []:
+        if isinstance(entry, Mapping) and (distance_m is None or entry.get("distance_m") == distance_m):
+            by_distance = _rmse(entry.get("translation_m"))
+            break
+    return by_distance, kitti_pct
+
+
+def bag_row(
+    *,
+    name: str,
+    bag: Path,
+    status: str,
+    batch_dir: Path,
+    summary: Mapping[str, Any] | None = None,
+    eval_report: Mapping[str, Any] | None = None,
+    span_log: Path | None = None,
+    span_match: str = "",
+    error: str | None = None,
+    note: str | None = None,
+    fingerprint: str = "",
+    rpe_distance_m: float | None = None,
+) -> dict[str, Any]:
+    """One report row. Metrics come from the bag's ``summary.json`` and ``eval/report.json``;
+    plots are the PNG files of the bag's folder and of its ``eval/`` folder."""
+    s = summary or {}
+    folder = batch_dir / name
+    has_outputs = summary is not None
+    pngs = [*sorted(folder.glob("*.png")), *sorted((folder / "eval").glob("*.png"))] if has_outputs else []
+    plots = [p.relative_to(batch_dir).as_posix() for p in pngs]  # loop top view, then evaluation plots
+    evaluation = s.get("evaluation") if isinstance(s.get("evaluation"), Mapping) else {}
+    ate = evaluation.get("ate") if isinstance(evaluation, Mapping) else None
+    rpe_m, rpe_pct = _rpe(eval_report, rpe_distance_m)
+    return {
+        "name": name,
+        "status": status,
+        "scans": s.get("scans"),
+        "keyframes": s.get("keyframes"),
+        "length_m": _number(s.get("length_m")),
+        "duration_s": _number(s.get("duration_s")),
+        "runtime_s": _number(s.get("runtime_s")),
+        "scans_per_s": _number(s.get("scans_per_s")),
+        "loop_closures": _loop_closures(s) if has_outputs else None,
+        "ate_rmse_m": _rmse(ate.get("translation_3d_m")) if isinstance(ate, Mapping) else None,
+        "rpe_rmse_m": rpe_m,
+        "rpe_kitti_percent": rpe_pct,
+        "map_points": s.get("map_points"),
+        "warnings": len(s.get("warnings") or []) if has_outputs else None,
+        "span_log": str(span_log) if span_log else None,
+        "span_match": span_match,
+        "bag": str(bag),
+        "output": f"{name}/" if has_outputs else None,
+        "plots": plots,
+        "error": error,
+        "note": note or s.get("evaluation_error"),
+        "fingerprint": fingerprint,
+    }
+
+
+def _csv_text(rows: Sequence[Mapping[str, Any]]) -> str:
+    buffer = io.StringIO()
+    writer = csv.DictWriter(buffer, fieldnames=ROW_FIELDS, lineterminator="\n")
+    writer.writeheader()
+    for row in rows:
+        writer.writerow({k: (";".join(v) if isinstance(v, list) else ("" if v is None else v)) for k, v in row.items()})
+    return buffer.getvalue()
+
+
+def _fmt(value: Any, digits: int) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.{digits}f}"
+    return str(value)
+
+
+_DIGITS = {"length_m": 1, "runtime_s": 1, "scans_per_s": 1, "ate_rmse_m": 3, "rpe_rmse_m": 3, "rpe_kitti_percent": 2}
+
+_CSS = """
+body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;margin:1.5rem;color:#1d2329;background:#fff}
+h1{font-size:1.4rem;margin:0 0 .3rem}
+p.meta{color:#5b6670;margin:.2rem 0 1rem}
+ul.totals{display:flex;gap:1.2rem;list-style:none;padding:0;margin:0 0 1rem}
+ul.totals li{background:#f2f4f6;border-radius:6px;padding:.4rem .8rem}
+table{border-collapse:collapse;width:100%;font-size:.9rem}
+th,td{border-bottom:1px solid #e1e5e9;padding:.35rem .5rem;text-align:left;vertical-align:top}
+td.num{text-align:right;font-variant-numeric:tabular-nums}
+th{background:#f7f8fa;position:sticky;top:0;white-space:nowrap}
+th button{all:unset;cursor:pointer;font-weight:600}
+th button:focus-visible{outline:2px solid #3b82f6}
+th[aria-sort=ascending] button::after{content:" \\25B2";font-size:.7em}
+th[aria-sort=descending] button::after{content:" \\25BC";font-size:.7em}
+tr:hover td{background:#fafbfc}
+.status{border-radius:4px;padding:.05rem .4rem;font-size:.8rem;white-space:nowrap}
+.status-done{background:#dcfce7;color:#166534}
+.status-up-to-date{background:#e0f2fe;color:#075985}
+.status-failed{background:#fee2e2;color:#991b1b}
+.status-interrupted,.status-not-started{background:#fef9c3;color:#854d0e}
+td.error{color:#991b1b;max-width:32rem;word-break:break-word}
+td.note{color:#854d0e;max-width:32rem;word-break:break-word}
+td.path{max-width:16rem;overflow-wrap:anywhere;color:#5b6670}
+td.plots a{white-space:nowrap;display:inline-block;margin-right:.5rem}
+a{color:#1d4ed8}
+"""
+
+_JS = """
+(function () {
+  var table = document.getElementById("bags");
+  var body = table.tBodies[0];
+  var heads = Array.prototype.slice.call(table.tHead.rows[0].cells);
+  function key(cell, kind) {
+    var v = cell.getAttribute("data-value");
+    if (kind === "num") { return (v === null || v === "") ? null : parseFloat(v); }
+    return (v === null ? cell.textContent : v).toLowerCase();
+  }
+  function sortBy(column, direction) {
+    var index = -1;
+    heads.forEach(function (h, i) { if (h.getAttribute("data-key") === column) { index = i; } });
+    if (index < 0) { return false; }
+    var kind = heads[index].getAttribute("data-kind");
+    var rows = Array.prototype.slice.call(body.rows).map(function (row, i) {
+      return {row: row, key: key(row.cells[index], kind), i: i};
+    });
+    rows.sort(function (a, b) {
+      if (a.key === null || b.key === null) {
+        if (a.key === b.key) { return a.i - b.i; }
+        return a.key === null ? 1 : -1;
+      }
+      var c = a.key < b.key ? -1 : (a.key > b.key ? 1 : 0);
+      if (direction === "desc") { c = -c; }
+      return c !== 0 ? c : a.i - b.i;
+    });
+    rows.forEach(function (r) { body.appendChild(r.row); });
+    heads.forEach(function (h) { h.removeAttribute("aria-sort"); });
+    heads[index].setAttribute("aria-sort", direction === "desc" ? "descending" : "ascending");
+    table.setAttribute("data-sort", column + ":" + direction);
+    return true;
+  }
+  heads.forEach(function (h) {
+    h.querySelector("button").addEventListener("click", function () {
+      var column = h.getAttribute("data-key");
+      var direction = table.getAttribute("data-sort") === column + ":asc" ? "desc" : "asc";
+      sortBy(column, direction);
+      try { history.replaceState(null, "", "#sort=" + column + ":" + direction); } catch (e) { /* file: URLs */ }
+    });
+  });
+  function fromAddress() {
+    var m = /^#sort=([A-Za-z0-9_]+):(asc|desc)$/.exec(window.location.hash);
+    if (m) { sortBy(m[1], m[2]); }
+  }
+  window.addEventListener("hashchange", fromAddress);
+  fromAddress();
+})();
+"""
+
+
+def _cell(field: str, kind: str, row: Mapping[str, Any]) -> str:
+    value = row.get(field)
+    esc = html.escape
+    if field == "name":
+        target = row.get("output")
+        label = esc(str(value))
+        inner = f'<a href="{esc(str(target))}">{label}</a>' if target else label
+        return f'<td data-value="{esc(str(value))}" title="{esc(str(row.get("bag") or ""))}">{inner}</td>'
+    if field == "status":
+        css = "status-" + str(value).replace(" ", "-")
+        return f'<td data-value="{esc(str(value))}"><span class="status {css}">{esc(str(value))}</span></td>'
+    if field == "plots":
+        links = " ".join(f'<a href="{esc(p)}">{esc(Path(p).stem.replace("_", " "))}</a>' for p in value or [])
+        return f'<td class="plots" data-value="{len(value or [])}">{links}</td>'
+    if field == "span_log":
+        text = Path(value).name if value else ""
+        return f'<td class="path" data-value="{esc(text)}" title="{esc(str(value or ""))} ({esc(str(row.get("span_match") or ""))})">{esc(text)}</td>'
+    if field == "error":
+        text = row.get("error") or row.get("note") or ""
+        css = "error" if row.get("error") else "note"
+        return f'<td class="{css}" data-value="{esc(text)}">{esc(text)}</td>'
+    if kind == "num":
+        number = _number(value)
+        shown = _fmt(value, _DIGITS.get(field, 3))
+        data = "" if number is None else repr(number)
+        return f'<td class="num" data-value="{data}">{esc(shown)}</td>'
+    return f'<td data-value="{esc(str(value or ""))}">{esc(str(value or ""))}</td>'
+
+
+def _html_text(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:
+    esc = html.escape
+    rpe_label = f"{meta['rpe_distance_m']:g} m" if meta.get("rpe_distance_m") else "distance"
+    heads = "".join(
+        f'<th data-key="{f}" data-kind="{k}" scope="col"><button type="button">{esc(h.format(rpe=rpe_label))}</button></th>'
+        for f, h, k in _COLUMNS
+    )
+    body = "\n".join(
+        f'<tr class="bag" data-name="{esc(str(r["name"]))}">' + "".join(_cell(f, k, r) for f, _, k in _COLUMNS) + "</tr>"
+        for r in rows
+    )
+    totals = meta.get("totals", {})
+    counts = totals.get("by_status", {})
+    items = [f"<li><b>{totals.get('bags', len(rows))}</b> bags</li>"]
+    items += [f"<li><b>{n}</b> {esc(status)}</li>" for status, n in counts.items() if n]
+    items.append(f"<li><b>{totals.get('scans', 0)}</b> scans</li>")
+    items.append(f"<li><b>{totals.get('length_m', 0.0):.1f}</b> m</li>")
+    title = f"lidar3d batch report: {meta.get('out_dir', '')}"
+    return (
+        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
+        f"<title>{esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
+        f"<h1>lidar3d batch report</h1>\n<p class=\"meta\">{esc(str(meta.get('out_dir', '')))} &middot; "
+        f"written {esc(str(meta.get('written_utc', '')))} &middot; engine {esc(str(meta.get('engine', '')))} &middot; "
+        f"lidar3d {esc(str(meta.get('lidar3d_version', '')))}"
+        + (" &middot; <b>interrupted</b>" if meta.get("interrupted") else "")
+        + "</p>\n"
+        f"<ul class=\"totals\">{''.join(items)}</ul>\n"
+        f'<table id="bags">\n<thead><tr>{heads}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>\n'
+        f"<script>{_JS}</script>\n</body>\n</html>\n"
+    )
+
+
+def write_report(batch_dir: Path, rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> ReportPaths:
+    """Write the three report files into ``batch_dir``, each atomically; returns their paths."""
+    paths = ReportPaths(batch_dir / "summary.csv", batch_dir / "summary.json", batch_dir / "report.html")
+    write_text_atomic(paths.csv, _csv_text(rows))
+    write_text_atomic(paths.json, json.dumps({**meta, "bags": list(rows)}, indent=2) + "\n")
+    write_text_atomic(paths.html, _html_text(rows, meta))
+    return paths
