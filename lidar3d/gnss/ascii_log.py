@@ -227,20 +227,5 @@ def _bestpos(log: str, f: list[str], week: int, seconds: float, time_status: Tim
 def _insstdev(f: list[str], week: int, seconds: float, time_status: TimeStatus | None) -> InsStdDevMessage:
     _check_count("INSSTDEV", f, 14)
     v = [float(x) for x in f[:9]]
-    return InsStdDevMessage(
-        log="INSSTDEV",
-        gps_week=week,
-        gps_seconds=seconds,
-        time_status=time_status,
-        latitude_std_m=v[0],
-        longitude_std_m=v[1],
-        height_std_m=v[2],
-        north_velocity_std_mps=v[3],
-        east_velocity_std_mps=v[4],
-        up_velocity_std_mps=v[5],
-        roll_std_deg=v[6],
-        pitch_std_deg=v[7],
-        azimuth_std_deg=v[8],
-        extended_status=int(f[9], 16),
-        time_since_update_s=int(f[10]),
-    )
+    # Body fields in record order: nine standard deviations, extended status, time since update.
+    return InsStdDevMessage("INSSTDEV", week, seconds, time_status, *v, int(f[9], 16), int(f[10]))

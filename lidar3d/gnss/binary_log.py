@@ -220,21 +220,6 @@ def _bestpos(log: str, body: bytes, week: int, seconds: float, time_status: Time
 
 
 def _insstdev(body: bytes, week: int, seconds: float, time_status: TimeStatus | None) -> InsStdDevMessage:
-    values = _INSSTDEV.unpack(body)
-    return InsStdDevMessage(
-        log="INSSTDEV",
-        gps_week=week,
-        gps_seconds=seconds,
-        time_status=time_status,
-        latitude_std_m=values[0],
-        longitude_std_m=values[1],
-        height_std_m=values[2],
-        north_velocity_std_mps=values[3],
-        east_velocity_std_mps=values[4],
-        up_velocity_std_mps=values[5],
-        roll_std_deg=values[6],
-        pitch_std_deg=values[7],
-        azimuth_std_deg=values[8],
-        extended_status=values[9],
-        time_since_update_s=values[10],
-    )
+    # The first 11 body fields (nine standard deviations, extended status, time since update) are in
+    # InsStdDevMessage's field order after the header fields; reserved fields follow.
+    return InsStdDevMessage("INSSTDEV", week, seconds, time_status, *_INSSTDEV.unpack(body)[:11])
