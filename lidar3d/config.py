@@ -136,7 +136,15 @@ class MappingConfig:
     degeneracy_threshold: float = 100.0
     converge_rotation_deg: float = 0.05
     converge_translation_m: float = 0.0005
+    # Submap planes: LeGO-LOAM fits 5 neighbours within 1 m; on a 16-beam scan those lie on one
+    # or two ring lines, and the tilt noise of such small fits, shared by every scan matched
+    # against the same keyframes, leaves a pitch offset of 0.2-0.5 deg (ours, loop and long).
+    # 10 neighbours within 1.4 m cut it to 0.04-0.1 deg.
+    plane_neighbours: int = 10
+    plane_max_distance_m: float = 1.4
     level_normal_z: float = 0.9  # planes this level inform only z, roll, pitch (0: off)
+    hold_yaw_min_degenerate: int = 2  # this many degenerate directions: yaw from the motion model (0: off)
+    hold_yaw_max_rate_deg_s: float = 5.0  # ... unless turning faster than this (the prediction is poor then)
     robust_scale_m: float = 0.05  # Geman-McClure scale; 0 selects LeGO-LOAM's 1 - 0.9|r| weight
     keyframe_distance_m: float = 1.0  # LIO-SAM surroundingkeyframeAddingDistThreshold
     keyframe_angle_deg: float = 11.46  # LIO-SAM 0.2 rad

@@ -29,6 +29,7 @@ from lidar3d.loop.closer import LoopCloser, correct_scan_poses
 from lidar3d.mapping.dense_map import add_scan_to_map
 from lidar3d.mapping.deskew import deskew_features, deskew_points, twist_between
 from lidar3d.mapping.keyframes import Keyframe, Submap
+from lidar3d.mapping.motion_model import MotionModel
 from lidar3d.features.frontend import STAGES as FRONT_END_STAGES
 from lidar3d.features.frontend import run_front_end
 from lidar3d.features.records import FeatureCloud, FeatureSet
@@ -128,13 +129,15 @@ class SlamPipeline:
             surf_voxel_m=mp.surf_voxel_m,
             cache_size=mp.submap_cache_keyframes,
             rebuild_every_keyframes=mp.submap_rebuild_every_keyframes,
+            plane_neighbours=mp.plane_neighbours,
+            plane_max_distance_m=mp.plane_max_distance_m,
         )
         self.dense_map = VoxelMap(mp.map_voxel_m)
         self.estimates: list[ScanEstimate] = []
         self.timings: dict[str, list[float]] = defaultdict(list)
         self.counts: dict[str, int] = defaultdict(int)
         self.warnings: list[str] = []
-        self._twist = np.zeros(6)
+        self.motion = MotionModel()
         self._scan_index = -1
         self._fallback_run_start: int | None = None
         self._pending: _PendingScan | None = None
@@ -168,18 +171,24 @@ class SlamPipeline:
 
         previous = self.estimates[-1] if self.estimates else None
         dt_s = (scan.stamp_ns - previous.stamp_ns) * 1e-9 if previous else 0.0
-        predicted = self._twist
+        predicted = self.motion.twist
         with timer("deskew"):
             features = raw.deskewed(predicted)
         with timer("odometry"):
-            step = self.odometry.update(features.features, exp_se3(self._twist * dt_s))
+            step = self.odometry.update(features.features, exp_se3(predicted * dt_s))
         T_world_odom = previous.T_world_odom @ step.T_prev_curr if previous else np.eye(4)
 
         with timer("mapping"):
-            T_world_lidar, motion_model_only = self._refine(raw, features, predicted, previous, step, dt_s)
+            T_world_lidar, motion_model_only, degenerate_axes, yaw_held = self._refine(
+                raw, features, predicted, previous, step, dt_s
+            )
         self._track_fallback(index, motion_model_only)
         if previous is not None:
-            self._twist = twist_between(previous.T_world_lidar, T_world_lidar, dt_s)
+            self.motion.update(
+                twist_between(previous.T_world_lidar, T_world_lidar, dt_s),
+                well_constrained=degenerate_axes == 0,
+                heading_observed=not yaw_held,
+            )
 
         is_keyframe = self._is_keyframe(T_world_lidar, raw)
         if is_keyframe:
@@ -189,7 +198,7 @@ class SlamPipeline:
             # (forward difference) is known; this scan waits for the next one.
             if self._pending is not None:
                 self._correction = np.eye(4)
-                self._publish(self._pending, self._twist)
+                self._publish(self._pending, self.motion.twist)
                 T_world_lidar = self._correction @ T_world_lidar
                 if is_keyframe:
                     self._last_keyframe_pose = T_world_lidar
@@ -262,27 +271,37 @@ class SlamPipeline:
         previous: ScanEstimate | None,
         step,
         dt_s: float,
-    ) -> tuple[np.ndarray, bool]:
-        """Scan-to-submap refinement; returns (T_world_lidar, motion_model_only).
+    ) -> tuple[np.ndarray, bool, int, bool]:
+        """Scan-to-submap refinement; returns (T_world_lidar, motion_model_only, degenerate
+        directions of the registration (6 when it did not run), yaw held at the prediction).
 
-        When the refined motion changes the deskewing by more than ``redeskew_threshold_m`` over
-        the sweep, the features are deskewed again with it and registered once more.
+        Registration starts from the odometry pose; along directions the submap leaves
+        degenerate it takes the motion model's vehicle prediction instead (see
+        :mod:`lidar3d.mapping.motion_model`). When the refined motion changes the deskewing by
+        more than ``redeskew_threshold_m`` over the sweep, the features are deskewed again with
+        it and registered once more.
         """
         if previous is None:
-            return np.eye(4), False
+            return np.eye(4), False, 6, False
         T_world_lidar = previous.T_world_lidar @ step.T_prev_curr
         if not len(self.submap):
-            return T_world_lidar, step.used_motion_model
+            return T_world_lidar, step.used_motion_model, 6, False
         mp = self.config.mapping
+        T_prior = None  # LOAM: degenerate directions keep the odometry guess ...
+        if self.motion.established and not step.edge_observed:  # ... unless odometry saw nothing there
+            T_prior = previous.T_world_lidar @ exp_se3(self.motion.vehicle_twist() * dt_s)
+        hold_yaw = abs(np.degrees(self.motion.twist[5])) < mp.hold_yaw_max_rate_deg_s
         target = self.submap.target(T_world_lidar[:3, 3])
         used_twist = predicted
         for attempt in range(1 + mp.redeskew_passes):
             corner, surf = self._mapping_clouds(features)
             surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
             iterations = mp.max_iterations if attempt == 0 else mp.redeskew_iterations
-            refined = register_to_submap(target, corner, surf, T_world_lidar, mp, iterations)
+            refined = register_to_submap(
+                target, corner, surf, T_world_lidar, mp, iterations, T_prior=T_prior, hold_yaw=hold_yaw
+            )
             if refined.iterations == 0:
-                return T_world_lidar, step.used_motion_model
+                return T_world_lidar, step.used_motion_model, 6, False
             T_world_lidar = refined.T_target_source
             twist = twist_between(previous.T_world_lidar, T_world_lidar, dt_s)
             if np.linalg.norm((twist - used_twist)[:3]) * self.sensor.sweep_period_s < mp.redeskew_threshold_m:
@@ -291,8 +310,8 @@ class SlamPipeline:
             used_twist = twist
         if refined.degenerate_axes:
             self.counts["degenerate_scans"] += 1
-
-        return T_world_lidar, False
+        yaw_held = T_prior is not None and hold_yaw and 0 < mp.hold_yaw_min_degenerate <= refined.degenerate_axes
+        return T_world_lidar, False, refined.degenerate_axes, yaw_held
 
     def _is_keyframe(self, T_world_lidar: np.ndarray, raw: "_RawFeatures") -> bool:
         """A scan with features becomes a keyframe after enough motion since the last one."""
@@ -330,7 +349,7 @@ class SlamPipeline:
         if self._fallback_run_start is not None:
             self._close_fallback_run(self._scan_index + 1)
         if self._pending is not None:
-            self._publish(self._pending, self._twist)
+            self._publish(self._pending, self.motion.twist)
             self._pending = None
 
     def result(self, partial: bool = False) -> SlamResult:

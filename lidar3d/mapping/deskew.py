@@ -42,7 +42,7 @@ def deskew_points(points: np.ndarray, time_offset_s: np.ndarray, twist: np.ndarr
     """Points (N,3) fired at ``time_offset_s`` moved into the lidar frame at the stamp."""
     if len(points) == 0 or not np.any(twist):
         return np.asarray(points, dtype=np.float64)
-    return exp_apply(time_offset_s[:, None] * np.asarray(twist, float)[None, :], points)
+    return exp_apply(twist, time_offset_s, points)
 
 
 def deskew_features(features: FeatureSet, twist: np.ndarray) -> FeatureSet:

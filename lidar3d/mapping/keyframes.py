@@ -63,6 +63,8 @@ class Submap:
         surf_voxel_m: float,
         cache_size: int = 400,
         rebuild_every_keyframes: int = 1,
+        plane_neighbours: int = 5,
+        plane_max_distance_m: float = 1.0,
     ) -> None:
         self.radius_m = radius_m
         self.max_keyframes = max_keyframes
@@ -71,6 +73,8 @@ class Submap:
         self.surf_voxel_m = surf_voxel_m
         self.cache_size = cache_size
         self.rebuild_every_keyframes = rebuild_every_keyframes
+        self.plane_neighbours = plane_neighbours
+        self.plane_max_distance_m = plane_max_distance_m
         self._added_since_build = 0
         self.keyframes: list[Keyframe] = []
         self._poses: list[np.ndarray] = []
@@ -155,6 +159,8 @@ class Submap:
         self._target = SubmapTarget(
             keyframe_indices=selection,
             corners=LineMap(corner) if len(corner) else None,
-            surfaces=PlaneMap(surf) if len(surf) else None,
+            surfaces=(
+                PlaneMap(surf, k=self.plane_neighbours, max_sq_dist=self.plane_max_distance_m**2) if len(surf) else None
+            ),
         )
         return self._target

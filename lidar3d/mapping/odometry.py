@@ -34,12 +34,15 @@ class OdometryStep:
         T_prev_curr: (4,4) motion from the previous scan's stamp to this one's.
         used_motion_model: True when features were too few and the guess was kept.
         planar_rows / edge_rows: residual rows used by each step.
+        edge_observed: the edge step ran and none of x, y, yaw was degenerate (so the step is
+            a measurement of the horizontal motion, not the motion-model guess carried along).
     """
 
     T_prev_curr: np.ndarray
     used_motion_model: bool
     planar_rows: int
     edge_rows: int
+    edge_observed: bool = False
 
 
 class ScanToScanOdometry:
@@ -110,4 +113,5 @@ class ScanToScanOdometry:
             **common,
         )
         used_model = planar.iterations == 0 and edge.iterations == 0
-        return OdometryStep(edge.T_target_source, used_model, planar.n_rows, edge.n_rows)
+        edge_observed = edge.iterations > 0 and edge.degenerate_axes == 0
+        return OdometryStep(edge.T_target_source, used_model, planar.n_rows, edge.n_rows, edge_observed)

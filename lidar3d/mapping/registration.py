@@ -18,6 +18,7 @@ update.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -260,6 +261,8 @@ def solve_pose(
     robust_scale_m: float = 0.0,
     row_weights: np.ndarray | None = None,
     level_normal_z: float = 0.0,
+    T_prior: np.ndarray | None = None,
+    hold_yaw_min_degenerate: int = 0,
 ) -> SolveResult:
     """Estimate ``T_target_source`` minimising the matched rows' residuals.
 
@@ -279,6 +282,15 @@ def solve_pose(
             planes fitted to noisy scan lines turn thousands of ground rows into confident,
             spurious x/y/yaw constraints that outvote a few real ones (a pole on open ground)
             and that the eigenvalue test cannot flag. 0 disables it.
+        T_prior: optional (4,4) pose to take along the degenerate directions instead of
+            ``T_init``. LOAM keeps the initial guess there; when the guess comes from a noisier
+            source (scan-to-scan odometry) than a motion-model prediction, the prediction is the
+            better value for what the data cannot see.
+        hold_yaw_min_degenerate: with ``T_prior``, when at least this many directions are
+            degenerate (0: never), start again with yaw held at the value of ``T_prior``. In
+            such scenes (open land, one pole in view) the few constraints left tie yaw to the
+            along-track position, so a small speed error in the prediction would be absorbed as
+            a turn; a vehicle's yaw rate is the better-known of the two.
 
     Returns a :class:`SolveResult`; when there are fewer than ``min_rows`` rows on the first
     iteration, the initial guess is returned with ``iterations == 0``.
@@ -341,8 +353,38 @@ def solve_pose(
             min_eig = float(vals[0])
             keep = vals >= degeneracy_threshold
             degenerate = int((~keep).sum())
+            if T_prior is not None and 0 < hold_yaw_min_degenerate <= degenerate and 5 in free_axes:
+                start = xyz_rpy_from_pose(T_init)
+                start[5] = xyz_rpy_from_pose(T_prior)[5]
+                held = solve_pose(
+                    pose_from_xyz_rpy(start),
+                    source,
+                    find_matches,
+                    free_axes=tuple(a for a in free_axes if a != 5),
+                    max_iterations=max_iterations,
+                    rematch_every=rematch_every,
+                    min_rows=min_rows,
+                    degeneracy_threshold=degeneracy_threshold,
+                    converge_rotation_deg=converge_rotation_deg,
+                    converge_translation_m=converge_translation_m,
+                    robust_scale_m=robust_scale_m,
+                    row_weights=row_weights,
+                    level_normal_z=level_normal_z,
+                    T_prior=T_prior,
+                )
+                return dataclasses.replace(held, degenerate_axes=max(degenerate, held.degenerate_axes), min_eigenvalue=min_eig)
             if degenerate:
                 projector = vecs @ np.diag(keep.astype(float)) @ vecs.T
+                if T_prior is not None:
+                    step = xyz_rpy_from_pose(T_prior)[free] - x[free]
+                    rot = free >= 3
+                    step[rot] = (step[rot] + np.pi) % (2 * np.pi) - np.pi
+                    x[free] += step - projector @ step
+                    T = pose_from_xyz_rpy(x)
+                    q = p @ T[:3, :3].T + T[:3, 3]
+                    residual = np.einsum("ij,ij->i", matches.normal, q) + matches.offset
+                    rf = residual[use] * w
+                    g = Jf.T @ rf
         try:
             dx = -np.linalg.solve(H + 1e-9 * np.eye(len(free)), g)
         except np.linalg.LinAlgError:

@@ -24,8 +24,15 @@ def register_to_submap(
     T_world_lidar_guess: np.ndarray,
     config: MappingConfig,
     max_iterations: int | None = None,
+    T_prior: np.ndarray | None = None,
+    hold_yaw: bool = False,
 ) -> SolveResult:
-    """Refine ``T_world_lidar`` of a scan whose features are given in its lidar frame."""
+    """Refine ``T_world_lidar`` of a scan whose features are given in its lidar frame.
+
+    ``T_prior``: the pose to keep along degenerate directions (default: the guess);
+    ``hold_yaw``: allow holding yaw at the prior's in badly degenerate scenes
+    (``config.hold_yaw_min_degenerate``).
+    """
     source = np.concatenate([corner_lidar, surf_lidar])
     n_corner = len(corner_lidar)
 
@@ -52,4 +59,6 @@ def register_to_submap(
         converge_translation_m=config.converge_translation_m,
         robust_scale_m=config.robust_scale_m,
         level_normal_z=config.level_normal_z,
+        T_prior=T_prior,
+        hold_yaw_min_degenerate=config.hold_yaw_min_degenerate if hold_yaw else 0,
     )

@@ -141,27 +141,32 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return out
 
 
-def exp_apply(xi: np.ndarray, points: np.ndarray) -> np.ndarray:
-    """Apply ``exp_se3(xi[i])`` to ``points[i]`` for every i without forming (N,4,4) matrices.
+def exp_apply(twist: np.ndarray, times: np.ndarray, points: np.ndarray) -> np.ndarray:
+    """Apply ``exp_se3(times[i] * twist)`` to ``points[i]`` for every i (one twist (v, w), (N,)
+    scalings), without forming (N,4,4) matrices.
 
-    ``xi`` is (N,6) ordered (v, w); uses Rodrigues' formula on vectors, so it costs a handful of
-    (N,3) array operations (the deskewing hot path).
+    Every point turns about the same unit axis k = w/|w|, by its own angle theta_i = t_i |w|, so
+    Rodrigues' formula becomes two (N,3)x(3,3) products with the constant matrices [k]x and
+    [k]x^2, and the left Jacobian on v a sum of three constant vectors with per-point weights:
+    R_i p = p + sin(theta_i) [k]x p + (1 - cos(theta_i)) [k]x^2 p,
+    J_i (t_i v) = t_i v + t_i (1 - cos(theta_i)) / theta_i [k]x v + t_i (theta_i - sin(theta_i)) / theta_i [k]x^2 v.
+    This is the deskewing hot path (every sweep, several times).
     """
-    v = xi[:, :3]
-    w = xi[:, 3:]
-    theta = np.linalg.norm(w, axis=1)
-    small = theta < 1e-9
-    safe = np.where(small, 1.0, theta)
-    k = w / safe[:, None]
-    sin = np.sin(theta)[:, None]
-    cos = np.cos(theta)[:, None]
-    th = theta[:, None]
-    kxp = cross(k, points)
-    kdp = np.einsum("ij,ij->i", k, points)[:, None]
-    rotated = points * cos + kxp * sin + k * kdp * (1.0 - cos)
-    # Left Jacobian applied to v: J v = v + (1-cos)/theta (k x v) + (theta - sin)/theta (k x (k x v))
-    kxv = cross(k, v)
-    a = np.where(small[:, None], 0.0, (1.0 - cos) / np.where(small, 1.0, theta)[:, None])
-    b = np.where(small[:, None], 0.0, (th - sin) / np.where(small, 1.0, theta)[:, None])
-    translated = v + a * kxv + b * cross(k, kxv)
+    twist = np.asarray(twist, dtype=np.float64)
+    times = np.asarray(times, dtype=np.float64)
+    v, w = twist[:3], twist[3:]
+    speed = float(np.linalg.norm(w))
+    if speed < 1e-12:
+        return points + times[:, None] * v
+    K = _skew(w / speed)
+    K2 = K @ K
+    theta = times * speed
+    sin, cos = np.sin(theta), np.cos(theta)
+    rotated = points + sin[:, None] * (points @ K.T) + (1.0 - cos)[:, None] * (points @ K2.T)
+    # (1 - cos)/theta * t = (1 - cos)/|w|, (theta - sin)/theta * t = (theta - sin)/|w|: no division by theta.
+    translated = (
+        times[:, None] * v
+        + ((1.0 - cos) / speed)[:, None] * (K @ v)
+        + ((theta - sin) / speed)[:, None] * (K2 @ v)
+    )
     return rotated + translated
