@@ -9,7 +9,7 @@ the nearest point j plus points on chosen neighbouring rings (LeGO-LOAM featureA
 * plane: j, the nearest point l on j's ring or one ring below, and the nearest point m on a
   ring above -> plane (j, l, m).
 
-Each ring of the previous sweep gets its own k-d tree so both searches are batched queries.
+Both searches are batched queries (see :class:`RingIndexedCloud` for the ring-restricted one).
 """
 
 from __future__ import annotations
@@ -24,20 +24,24 @@ __all__ = ["RingIndexedCloud"]
 
 
 class RingIndexedCloud:
-    """A feature cloud of one sweep with one k-d tree per ring and one over all points."""
+    """A feature cloud of one sweep, searchable by nearest point overall or on a given ring.
+
+    Ring-restricted search uses one 4-D k-d tree over (x, y, z, ring * RING_SPACING_M): with
+    the ring coordinate spaced far beyond any search radius, the nearest neighbour of
+    (q, r * RING_SPACING_M) within the radius is the nearest point on ring r, so a whole batch of
+    queries, each aimed at its own ring, is one tree query.
+    """
+
+    RING_SPACING_M = 1.0e4
 
     def __init__(self, points: np.ndarray, ring: np.ndarray, n_rings: int) -> None:
         self.points = np.asarray(points, dtype=np.float64)
         self.ring = np.asarray(ring, dtype=np.int64)
         self.n_rings = n_rings
         self.tree = cKDTree(self.points) if len(self.points) else None
-        self._ring_points: list[np.ndarray | None] = []
-        self._ring_index: list[np.ndarray | None] = []
-        self._ring_trees: list[cKDTree | None] = []
-        for r in range(n_rings):
-            idx = np.flatnonzero(self.ring == r)
-            self._ring_index.append(idx)
-            self._ring_trees.append(cKDTree(self.points[idx]) if idx.size else None)
+        self._ring_tree = (
+            cKDTree(np.column_stack([self.points, self.ring * self.RING_SPACING_M])) if len(self.points) else None
+        )
 
     def __len__(self) -> int:
         return int(self.points.shape[0])
@@ -48,27 +52,25 @@ class RingIndexedCloud:
         """Index and distance of the nearest point on rings base_ring + offsets (not ``exclude``)."""
         best_idx = np.full(len(queries), -1, np.int64)
         best_dist = np.full(len(queries), np.inf)
+        if self._ring_tree is None or len(queries) == 0:
+            return best_idx, best_dist
+        n = len(self.points)
+        k = min(2, n)
         for offset in ring_offsets:
             target_ring = base_ring + offset
-            for r in np.unique(target_ring):
-                if r < 0 or r >= self.n_rings or self._ring_trees[r] is None:
-                    continue
-                sel = np.flatnonzero(target_ring == r)
-                tree = self._ring_trees[r]
-                k = min(2, tree.n)
-                dist, idx = tree.query(queries[sel], k=k, distance_upper_bound=max_dist)
-                dist = dist.reshape(len(sel), k)
-                idx = idx.reshape(len(sel), k)
-                valid = np.isfinite(dist)
-                global_idx = np.where(valid, self._ring_index[r][np.minimum(idx, tree.n - 1)], -1)
-                not_self = global_idx != exclude[sel, None]
-                dist = np.where(valid & not_self, dist, np.inf)
-                pick = np.argmin(dist, axis=1)
-                d = dist[np.arange(len(sel)), pick]
-                g = global_idx[np.arange(len(sel)), pick]
-                better = d < best_dist[sel]
-                best_dist[sel[better]] = d[better]
-                best_idx[sel[better]] = g[better]
+            on_sensor = (target_ring >= 0) & (target_ring < self.n_rings)
+            q4 = np.column_stack([queries, target_ring * self.RING_SPACING_M])
+            dist, idx = self._ring_tree.query(q4, k=k, distance_upper_bound=max_dist)
+            dist = dist.reshape(len(queries), k)
+            idx = idx.reshape(len(queries), k)
+            valid = np.isfinite(dist) & on_sensor[:, None] & (idx != exclude[:, None])
+            dist = np.where(valid, dist, np.inf)
+            pick = np.argmin(dist, axis=1)
+            rows = np.arange(len(queries))
+            d = dist[rows, pick]
+            better = d < best_dist
+            best_dist[better] = d[better]
+            best_idx[better] = idx[rows, pick][better]
         return best_idx, best_dist
 
     def _nearest(self, queries: np.ndarray, max_dist_m: float) -> tuple[np.ndarray, np.ndarray]:
