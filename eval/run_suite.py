@@ -60,13 +60,17 @@ def _log(message: str) -> None:
 
 # --- running one method in its own process ------------------------------------------------------
 
-def run_worker(method: str, case: CachedScenario, out_dir: Path, *, genz_deskew: bool, timeout_s: float | None) -> dict:
+def run_worker(
+    method: str, case: CachedScenario, out_dir: Path, *, genz_deskew: bool, timeout_s: float | None, loop_closure: bool = True
+) -> dict:
     """Run ``suite_worker.py`` for one method; returns its ``run.json`` plus exit status and peak RSS."""
     out_dir.mkdir(parents=True, exist_ok=True)
     command = [sys.executable, str(HERE / "suite_worker.py"), "--method", method, "--bag", str(case.bag),
                "--out", str(out_dir)]
     if method == "genz-icp" and not genz_deskew:
         command.append("--genz-no-deskew")
+    if method == "lidar3d" and not loop_closure:
+        command.append("--no-loop")
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     log_path = out_dir / "worker.log"
     t0 = time.perf_counter()
@@ -202,7 +206,8 @@ def run_suite(args: argparse.Namespace) -> int:
         case, method = task
         out_dir = run_dir / f"{case.scenario}_s{case.seed}" / method
         _log(f"{case.label}: {METHOD_NAMES[method]} running")
-        record = run_worker(method, case, out_dir, genz_deskew=not args.genz_no_deskew, timeout_s=args.timeout)
+        record = run_worker(method, case, out_dir, genz_deskew=not args.genz_no_deskew, timeout_s=args.timeout,
+                            loop_closure=not args.no_loop)
         if record["status"] == "ok":
             try:
                 _evaluate(record, case, out_dir)
@@ -297,6 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="simulate only the first S seconds of each scenario (quick runs); default: full length")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="N", help="simulation seeds (default: 0)")
     parser.add_argument("--no-peers", action="store_true", help="run lidar3d only")
+    parser.add_argument("--no-loop", action="store_true",
+                        help="lidar3d with loop closure off (odometry and mapping alone, as the odometry targets are set)")
     parser.add_argument("--peers", nargs="+", choices=list(PEERS), default=list(PEERS), metavar="PEER",
                         help="peers to run beside lidar3d (default: kiss-icp genz-icp)")
     parser.add_argument("--genz-no-deskew", action="store_true",

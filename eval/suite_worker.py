@@ -66,10 +66,16 @@ def _stage_stats(samples_ms: dict[str, np.ndarray]) -> dict[str, dict[str, float
     return out
 
 
-def run_lidar3d(bag: Path, out: Path, max_scans: int | None) -> dict:
+def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool = True) -> dict:
+    import dataclasses
+
+    from lidar3d.config import Config
     from lidar3d.run import run_bag
 
-    outcome = run_bag(bag, out, max_scans=max_scans)
+    config = Config()
+    if not loop_closure:
+        config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
+    outcome = run_bag(bag, out, max_scans=max_scans, config=config)
     summary = outcome.summary
     timings = {k: np.asarray(v) for k, v in outcome.result.timings_ms.items()}
     return {
@@ -83,7 +89,7 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None) -> dict:
         "keyframes": summary.get("keyframes"),
         "warnings": summary.get("warnings", []),
         "pose_instant": "header stamp (sweep start)",
-        "settings": {"config": "lidar3d defaults (see config.toml)"},
+        "settings": {"config": "lidar3d defaults (see config.toml)" + ("" if loop_closure else ", loop closure off")},
     }
 
 
@@ -117,6 +123,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--genz-no-deskew", action="store_true", help="run GenZ-ICP with its preset's deskew off")
+    parser.add_argument("--no-loop", action="store_true", help="run lidar3d with loop closure off")
     args = parser.parse_args(argv)
 
     import logging
@@ -125,7 +132,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     if args.method == "lidar3d":
-        record = run_lidar3d(args.bag, args.out, args.max_scans)
+        record = run_lidar3d(args.bag, args.out, args.max_scans, loop_closure=not args.no_loop)
     else:
         record = run_peer_method(args.method, args.bag, args.out, args.max_scans, not args.genz_no_deskew)
     record["process_s"] = round(time.perf_counter() - t0, 3)

@@ -32,14 +32,16 @@ NAMES = {"a": "a__scans", "b": "b__scans", "c": "c__scans", "bad": "bad__scans"}
 OUTPUTS = ("trajectory_tum.txt", "trajectory_kitti.txt", "odometry_tum.txt", "keyframes_tum.txt", "map.pcd")
 
 
-def simulate_bags(root: Path, names=GOOD, *, with_corrupt: bool = True) -> Path:
-    """``root/data/<name>/`` drives an hour apart (ROS1, ``c`` ROS2), their logs in ``root/spans``."""
+def simulate_bags(root: Path, names=GOOD, *, with_corrupt: bool = True, durations_s: dict | None = None) -> Path:
+    """``root/data/<name>/`` drives an hour apart (ROS1, ``c`` ROS2), their logs in ``root/spans``;
+    each ``DURATION_S`` long unless ``durations_s`` says otherwise."""
     from lidar3d.sim import DEFAULT_START_TIME_NS, Simulation, write_simulation
 
     data, spans = root / "data", root / "spans"
     spans.mkdir(parents=True)
     for index, name in enumerate(names):
-        sim = Simulation("loop", seed=index, duration_s=DURATION_S, start_time_ns=DEFAULT_START_TIME_NS + index * HOUR_NS)
+        duration_s = (durations_s or {}).get(name, DURATION_S)
+        sim = Simulation("loop", seed=index, duration_s=duration_s, start_time_ns=DEFAULT_START_TIME_NS + index * HOUR_NS)
         outputs = write_simulation(sim, data / name, bag_format="ros2" if name == "c" else "ros1")
         shutil.copy(outputs.span_log, spans / f"span_{name}.log")
     if with_corrupt:
@@ -184,7 +186,10 @@ def _wait_for(condition, process: subprocess.Popen, timeout_s: float = 120.0) ->
         time.sleep(0.05)
 
 
-def test_ctrl_c_then_kill_then_resume_redoes_only_unfinished_bags(drives, tmp_path):
+def test_ctrl_c_then_kill_then_resume_redoes_only_unfinished_bags(tmp_path):
+    # b and c run for several seconds each, so the signals below land while they run even on a
+    # loaded machine (with 2 s bags the whole batch could finish before the test saw "a" done).
+    drives = simulate_bags(tmp_path / "drives", with_corrupt=False, durations_s={"b": 8.0, "c": 8.0})
     out = tmp_path / "out"
     args = ["batch", *(str(drives / n) for n in GOOD), "--out", str(out), "--workers", "1"]
     published = lambda name: (out / NAMES[name] / JOB_FILE).exists()  # noqa: E731
