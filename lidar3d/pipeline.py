@@ -171,7 +171,7 @@ class SlamPipeline:
 
         previous = self.estimates[-1] if self.estimates else None
         dt_s = (scan.stamp_ns - previous.stamp_ns) * 1e-9 if previous else 0.0
-        predicted = self.motion.twist
+        predicted = self.motion.prediction()
         with timer("deskew"):
             features = raw.deskewed(predicted)
         with timer("odometry"):

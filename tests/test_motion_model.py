@@ -72,6 +72,20 @@ def test_yaw_rate_decays_while_the_heading_is_unobserved():
     assert model.twist[0] == pytest.approx(5.0)
 
 
+def test_prediction_is_smoothed_and_drops_sideways_velocity_after_a_degenerate_scan():
+    model = MotionModel(prediction_smoothing=0.5)
+    _drive(model, 30, np.random.default_rng(8), lateral_noise=0.0)
+    before = model.prediction()
+    jumped = np.r_[10.0 * FORWARD + np.array([0.5, 1.0, 0.0]), 0.0, 0.0, 0.02]
+    model.update(jumped, well_constrained=True)
+    np.testing.assert_allclose(model.prediction(), 0.5 * jumped + 0.5 * before)  # well constrained: kept
+    model.update(jumped, well_constrained=False)
+    prediction = model.prediction()
+    axis = model.forward_axis
+    assert np.linalg.norm(prediction[:3] - (prediction[:3] @ axis) * axis) < 1e-12
+    np.testing.assert_allclose(model.twist, jumped)  # the measured twist itself is untouched
+
+
 def _ground_and_wall():
     """Level ground plus one wall facing x: the lateral position is free, the rest is observed."""
     rng = np.random.default_rng(6)
