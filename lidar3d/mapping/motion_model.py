@@ -42,7 +42,7 @@ class MotionModel:
         min_samples: well-constrained scans needed before the direction is trusted.
         min_consistency: length of the mean unit velocity (1: always the same direction, 0:
             random) needed to treat the platform as a vehicle. Reversing counts as the same axis.
-        smoothing: weight of a new sample in the running mean direction.
+        direction_smoothing: weight of a new sample in the running mean direction of travel.
         yaw_rate_decay: factor on the carried yaw rate per scan whose heading was unobserved.
         prediction_smoothing: weight of the newest twist in the smoothed prediction (1: none).
     """
@@ -53,14 +53,14 @@ class MotionModel:
         min_speed_mps: float = 1.0,
         min_samples: int = 20,
         min_consistency: float = 0.95,
-        smoothing: float = 0.05,
+        direction_smoothing: float = 0.05,
         yaw_rate_decay: float = 0.9,
         prediction_smoothing: float = 0.5,
     ) -> None:
         self.min_speed_mps = min_speed_mps
         self.min_samples = min_samples
         self.min_consistency = min_consistency
-        self.smoothing = smoothing
+        self.direction_smoothing = direction_smoothing
         self.yaw_rate_decay = yaw_rate_decay
         self.prediction_smoothing = prediction_smoothing
         self.twist = np.zeros(6)
@@ -94,7 +94,7 @@ class MotionModel:
         if self._samples == 0:
             self._direction_sum = unit
         else:
-            self._direction_sum = (1 - self.smoothing) * self._direction_sum + self.smoothing * unit
+            self._direction_sum = (1 - self.direction_smoothing) * self._direction_sum + self.direction_smoothing * unit
         self._samples += 1
 
     @property

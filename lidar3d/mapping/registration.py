@@ -18,7 +18,6 @@ update.
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -287,7 +286,8 @@ def solve_pose(
             source (scan-to-scan odometry) than a motion-model prediction, the prediction is the
             better value for what the data cannot see.
         hold_yaw_min_degenerate: with ``T_prior``, when at least this many directions are
-            degenerate (0: never), start again with yaw held at the value of ``T_prior``. In
+            degenerate (0: never), start again with yaw held at the value of ``T_prior`` (the
+            reported degenerate count is the larger of the two attempts'). In
             such scenes (open land, one pole in view) the few constraints left tie yaw to the
             along-track position, so a small speed error in the prediction would be absorbed as
             a turn; a vehicle's yaw rate is the better-known of the two.
@@ -296,15 +296,17 @@ def solve_pose(
     iteration, the initial guess is returned with ``iterations == 0``.
     """
     x = xyz_rpy_from_pose(T_init)
+    T_start = T_init.copy()  # returned as is when there are too few rows at the start
     free = np.asarray(free_axes, dtype=np.int64)
     projector = None
     degenerate = 0
+    degenerate_before_hold = 0
     min_eig = float("nan")
     matches = MatchRows.empty()
     converged = False
     iteration = 0
     n_rows = 0
-    for iteration in range(max_iterations):
+    while iteration < max_iterations:
         T = pose_from_xyz_rpy(x)
         q_all = None
         if iteration % rematch_every == 0:
@@ -312,7 +314,7 @@ def solve_pose(
             matches = find_matches(q_all)
         if len(matches) < min_rows:
             if iteration == 0:
-                return SolveResult(T_init.copy(), 0, False, len(matches), 0, min_eig)
+                return SolveResult(T_start, 0, False, len(matches), degenerate_before_hold, min_eig)
             break
         p = source[matches.source_index]
         q = p @ T[:3, :3].T + T[:3, 3] if q_all is None else q_all[matches.source_index]
@@ -331,7 +333,7 @@ def solve_pose(
         n_rows = int(use.sum())
         if n_rows < min_rows:
             if iteration == 0:
-                return SolveResult(T_init.copy(), 0, False, n_rows, 0, min_eig)
+                return SolveResult(T_start, 0, False, n_rows, degenerate_before_hold, min_eig)
             break
         dR = _rotation_derivatives(x)  # (3,3,3)
         n = matches.normal[use]
@@ -350,29 +352,17 @@ def solve_pose(
         g = Jf.T @ rf
         if iteration == 0:
             vals, vecs = np.linalg.eigh(H)
-            min_eig = float(vals[0])
             keep = vals >= degeneracy_threshold
             degenerate = int((~keep).sum())
-            if T_prior is not None and 0 < hold_yaw_min_degenerate <= degenerate and 5 in free_axes:
-                start = xyz_rpy_from_pose(T_init)
-                start[5] = xyz_rpy_from_pose(T_prior)[5]
-                held = solve_pose(
-                    pose_from_xyz_rpy(start),
-                    source,
-                    find_matches,
-                    free_axes=tuple(a for a in free_axes if a != 5),
-                    max_iterations=max_iterations,
-                    rematch_every=rematch_every,
-                    min_rows=min_rows,
-                    degeneracy_threshold=degeneracy_threshold,
-                    converge_rotation_deg=converge_rotation_deg,
-                    converge_translation_m=converge_translation_m,
-                    robust_scale_m=robust_scale_m,
-                    row_weights=row_weights,
-                    level_normal_z=level_normal_z,
-                    T_prior=T_prior,
-                )
-                return dataclasses.replace(held, degenerate_axes=max(degenerate, held.degenerate_axes), min_eigenvalue=min_eig)
+            if T_prior is not None and 0 < hold_yaw_min_degenerate <= degenerate and 5 in free:
+                # Start again with yaw fixed at the prior's: rematch and redo this iteration.
+                min_eig, degenerate_before_hold = float(vals[0]), degenerate
+                x[5] = xyz_rpy_from_pose(T_prior)[5]
+                T_start = pose_from_xyz_rpy(x)
+                free = free[free != 5]
+                continue
+            if np.isnan(min_eig):
+                min_eig = float(vals[0])
             if degenerate:
                 projector = vecs @ np.diag(keep.astype(float)) @ vecs.T
                 if T_prior is not None:
@@ -403,6 +393,6 @@ def solve_pose(
             converged = True
             iteration += 1
             break
-    else:
-        iteration = max_iterations
+        iteration += 1
+    degenerate = max(degenerate, degenerate_before_hold)
     return SolveResult(pose_from_xyz_rpy(x), iteration, converged, n_rows, degenerate, min_eig)

@@ -54,8 +54,7 @@ class RingIndexedCloud:
         best_dist = np.full(len(queries), np.inf)
         if self._ring_tree is None or len(queries) == 0:
             return best_idx, best_dist
-        n = len(self.points)
-        k = min(2, n)
+        k = min(2, len(self.points))
         for offset in ring_offsets:
             target_ring = base_ring + offset
             on_sensor = (target_ring >= 0) & (target_ring < self.n_rings)
