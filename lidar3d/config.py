@@ -154,8 +154,13 @@ class MappingConfig:
     submap_cache_keyframes: int = 400
     submap_rebuild_every_keyframes: int = 3
     map_voxel_m: float = 0.2  # dense output map
-    redeskew_passes: int = 1  # re-register after deskewing again with the refined motion
-    redeskew_threshold_m: float = 0.01  # ... when the motion over a sweep changed this much
+    # A scan is registered deskewed with the motion model's prediction (the motion before it).
+    # Once the next scan's pose is known, the motion over its own sweep is (forward difference);
+    # when that moves some point of the sweep by redeskew_threshold_m more than the prediction did
+    # (the angular part measured at redeskew_lever_m), the scan is deskewed again and re-registered
+    # before it enters the map. Turn entries and exits, where the prediction lags a whole sweep.
+    redeskew_threshold_m: float = 0.01
+    redeskew_lever_m: float = 10.0
     redeskew_iterations: int = 4  # iteration limit of that second registration
 
 

@@ -43,7 +43,7 @@ __all__ = ["ScanEstimate", "SlamResult", "SlamPipeline", "PreparedScan", "prepar
 
 log = logging.getLogger(__name__)
 
-STAGES = ("deskew", *FRONT_END_STAGES, "odometry", "mapping", "map_update")
+STAGES = ("deskew", *FRONT_END_STAGES, "odometry", "mapping", "redeskew", "map_update")
 
 
 @dataclass(frozen=True, slots=True)
@@ -152,7 +152,9 @@ class SlamPipeline:
         """Estimate the pose of ``scan``; returns None when the scan is dropped (bad stamp).
 
         ``scan`` may come already through the front end (:func:`prepare_scan`, which depends on
-        nothing but the scan, so an adapter may run it ahead in another process).
+        nothing but the scan, so an adapter may run it ahead in another process). The returned
+        estimate is provisional: the next scan's pose may revise it (:meth:`_redeskewed`), and a
+        loop closure corrects it; :meth:`result` has the final poses.
         """
         prepared = scan if isinstance(scan, PreparedScan) else None
         scan = prepared.scan if prepared is not None else scan
@@ -180,7 +182,7 @@ class SlamPipeline:
 
         with timer("mapping"):
             T_world_lidar, motion_model_only, degenerate_axes, yaw_held = self._refine(
-                raw, features, predicted, previous, step, dt_s
+                raw, features, previous, step, dt_s
             )
         self._track_fallback(index, motion_model_only)
         if previous is not None:
@@ -193,16 +195,23 @@ class SlamPipeline:
         is_keyframe = self._is_keyframe(T_world_lidar, raw)
         if is_keyframe:
             self._last_keyframe_pose = T_world_lidar
-        with timer("map_update"):
-            # The sweep of the previous scan is deskewed for good now that the motion after it
+        if self._pending is not None:
+            # The sweep of the previous scan is deskewed for good now that the motion over it
             # (forward difference) is known; this scan waits for the next one.
+            with timer("redeskew"):
+                self._pending = self._redeskewed(self._pending, self.motion.twist)
+            if self._pending.is_keyframe and not is_keyframe:
+                self._last_keyframe_pose = self._pending.T_world_lidar
+        with timer("map_update"):
             if self._pending is not None:
                 self._correction = np.eye(4)
                 self._publish(self._pending, self.motion.twist)
                 T_world_lidar = self._correction @ T_world_lidar
                 if is_keyframe:
                     self._last_keyframe_pose = T_world_lidar
-            self._pending = _PendingScan(scan, raw, T_world_lidar, index, is_keyframe)
+            self._pending = _PendingScan(
+                scan, raw, T_world_lidar, index, is_keyframe, predicted, registered=degenerate_axes == 0
+            )
             if is_keyframe and not len(self.submap):
                 self._publish_keyframe(self._pending, predicted)
 
@@ -210,6 +219,30 @@ class SlamPipeline:
         self.estimates.append(estimate)
         self.counts["scans"] += 1
         return estimate
+
+    def _redeskewed(self, pending: "_PendingScan", twist: np.ndarray) -> "_PendingScan":
+        """``pending`` re-registered with its sweep deskewed by ``twist`` (its forward motion)
+        when that differs enough from the prediction it was registered with; its estimate is
+        revised with it. Scans that were not fully constrained keep their pose: their free
+        directions came from the motion model, which the forward difference would only echo."""
+        mp = self.config.mapping
+        change = twist - pending.deskew_twist
+        moved_m = max(np.linalg.norm(change[:3]), mp.redeskew_lever_m * np.linalg.norm(change[3:]))
+        if not pending.registered or moved_m * self.sensor.sweep_period_s < mp.redeskew_threshold_m:
+            return pending
+        corner, surf = self._mapping_clouds(pending.raw.deskewed(twist))
+        surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
+        target = self.submap.target(pending.T_world_lidar[:3, 3])
+        refined = register_to_submap(target, corner, surf, pending.T_world_lidar, mp, mp.redeskew_iterations)
+        if refined.iterations == 0 or refined.degenerate_axes:
+            return pending
+        self.counts["redeskewed_scans"] += 1
+        T_world_lidar = refined.T_target_source
+        previous = self.estimates[-1]
+        if previous.scan_index != pending.index:
+            raise RuntimeError(f"pending scan {pending.index} is not the latest estimate ({previous.scan_index})")
+        self.estimates[-1] = dataclasses.replace(previous, T_world_lidar=T_world_lidar)
+        return dataclasses.replace(pending, T_world_lidar=T_world_lidar)
 
     def _publish(self, pending: "_PendingScan", twist: np.ndarray) -> None:
         """Add a finished scan to the dense map (and, if selected, to the keyframes)."""
@@ -267,7 +300,6 @@ class SlamPipeline:
         self,
         raw: "_RawFeatures",
         features: "_RawFeatures",
-        predicted: np.ndarray,
         previous: ScanEstimate | None,
         step,
         dt_s: float,
@@ -277,9 +309,8 @@ class SlamPipeline:
 
         Registration starts from the odometry pose; along directions the submap leaves
         degenerate it takes the motion model's vehicle prediction instead (see
-        :mod:`lidar3d.mapping.motion_model`). When the refined motion changes the deskewing by
-        more than ``redeskew_threshold_m`` over the sweep, the features are deskewed again with
-        it and registered once more.
+        :mod:`lidar3d.mapping.motion_model`). ``features`` are deskewed with the predicted
+        motion; :meth:`_redeskewed` revisits the pose once the motion over the sweep is known.
         """
         if previous is None:
             return np.eye(4), False, 6, False
@@ -292,26 +323,15 @@ class SlamPipeline:
             T_prior = previous.T_world_lidar @ exp_se3(self.motion.vehicle_twist() * dt_s)
         hold_yaw = abs(np.degrees(self.motion.twist[5])) < mp.hold_yaw_max_rate_deg_s
         target = self.submap.target(T_world_lidar[:3, 3])
-        used_twist = predicted
-        for attempt in range(1 + mp.redeskew_passes):
-            corner, surf = self._mapping_clouds(features)
-            surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
-            iterations = mp.max_iterations if attempt == 0 else mp.redeskew_iterations
-            refined = register_to_submap(
-                target, corner, surf, T_world_lidar, mp, iterations, T_prior=T_prior, hold_yaw=hold_yaw
-            )
-            if refined.iterations == 0:
-                return T_world_lidar, step.used_motion_model, 6, False
-            T_world_lidar = refined.T_target_source
-            twist = twist_between(previous.T_world_lidar, T_world_lidar, dt_s)
-            if np.linalg.norm((twist - used_twist)[:3]) * self.sensor.sweep_period_s < mp.redeskew_threshold_m:
-                break
-            features = raw.deskewed(twist)
-            used_twist = twist
+        corner, surf = self._mapping_clouds(features)
+        surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
+        refined = register_to_submap(target, corner, surf, T_world_lidar, mp, T_prior=T_prior, hold_yaw=hold_yaw)
+        if refined.iterations == 0:
+            return T_world_lidar, step.used_motion_model, 6, False
         if refined.degenerate_axes:
             self.counts["degenerate_scans"] += 1
         yaw_held = T_prior is not None and hold_yaw and 0 < mp.hold_yaw_min_degenerate <= refined.degenerate_axes
-        return T_world_lidar, False, refined.degenerate_axes, yaw_held
+        return refined.T_target_source, False, refined.degenerate_axes, yaw_held
 
     def _is_keyframe(self, T_world_lidar: np.ndarray, raw: "_RawFeatures") -> bool:
         """A scan with features becomes a keyframe after enough motion since the last one."""
@@ -439,6 +459,8 @@ class _PendingScan:
     T_world_lidar: np.ndarray
     index: int
     is_keyframe: bool
+    deskew_twist: np.ndarray  # the motion its features were registered deskewed with
+    registered: bool  # the pose came from a registration with no degenerate direction
 
 
 class _StageTimer:
