@@ -144,7 +144,9 @@ class MappingConfig:
     plane_max_distance_m: float = 1.4
     level_normal_z: float = 0.9  # planes this level inform only z, roll, pitch (0: off)
     hold_yaw_min_degenerate: int = 2  # this many degenerate directions: yaw from the motion model (0: off)
-    hold_yaw_max_rate_deg_s: float = 5.0  # ... unless turning faster than this (the prediction is poor then)
+    # Below this yaw rate the vehicle drives straight: degenerate directions take the motion
+    # model's prediction and yaw may be held (above it the prediction lags the turn).
+    straight_max_yaw_rate_deg_s: float = 5.0
     robust_scale_m: float = 0.05  # Geman-McClure scale; 0 selects LeGO-LOAM's 1 - 0.9|r| weight
     keyframe_distance_m: float = 1.0  # LIO-SAM surroundingkeyframeAddingDistThreshold
     keyframe_angle_deg: float = 11.46  # LIO-SAM 0.2 rad
