@@ -195,7 +195,7 @@ class LoopConfig:
     cooldown_keyframes: int = 5  # after an accepted loop, skip this many query keyframes
     submap_neighbours: int = 10  # target = match +- this many keyframes (LeGO-LOAM +-25 at 0.3 m spacing)
     voxel_m: float = 0.4  # LeGO-LOAM loop target downsampling
-    icp_method: str = "point_to_plane"  # or "gicp" (Open3D generalized ICP)
+    icp_method: str = "gicp"  # or "point_to_plane" (Open3D); GICP rotations were 10x closer on `long`
     icp_max_correspondence_m: tuple[float, ...] = (4.0, 2.0, 1.0, 0.5)  # coarse-to-fine stages
     icp_max_iterations: int = 30  # per stage
     normal_radius_m: float = 1.2  # target normals for point-to-plane
@@ -210,7 +210,7 @@ class LoopConfig:
     max_correction_deg: float = 10.0
     information_points: int = 100  # effective independent correspondences behind the loop information
     min_sigma_translation_m: float = 0.02  # floor added to the loop covariance
-    min_sigma_rotation_deg: float = 0.1
+    min_sigma_rotation_deg: float = 0.5  # one keyframe against a submap: trust its rotation to ~0.5 deg
     huber_k: float = 1.345  # Huber threshold on loop factors, in sigmas (hdl_graph_slam: 1.0)
     odometry_sigma_translation_m: float = 0.01  # per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-4)
     odometry_sigma_rotation_deg: float = 0.05  # per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-6 rad^2)
