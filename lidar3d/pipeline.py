@@ -230,10 +230,7 @@ class SlamPipeline:
         moved_m = max(np.linalg.norm(change[:3]), mp.redeskew_lever_m * np.linalg.norm(change[3:]))
         if not pending.registered or moved_m * self.sensor.sweep_period_s < mp.redeskew_threshold_m:
             return pending
-        corner, surf = self._mapping_clouds(pending.raw.deskewed(twist))
-        surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
-        target = self.submap.target(pending.T_world_lidar[:3, 3])
-        refined = register_to_submap(target, corner, surf, pending.T_world_lidar, mp, mp.redeskew_iterations)
+        refined = self._register(pending.raw.deskewed(twist), pending.T_world_lidar, mp.redeskew_iterations)
         if refined.iterations == 0 or refined.degenerate_axes:
             return pending
         self.counts["redeskewed_scans"] += 1
@@ -286,6 +283,22 @@ class SlamPipeline:
         self._correction = update.correction @ self._correction
         self._last_keyframe_pose = update.poses[-1]
 
+    def _register(
+        self,
+        features: "_RawFeatures",
+        T_world_lidar: np.ndarray,
+        iterations: int,
+        T_prior: np.ndarray | None = None,
+        hold_yaw: bool = False,
+    ):
+        """Scan-to-submap registration of deskewed ``features`` from ``T_world_lidar`` (see
+        :func:`register_to_submap` for ``T_prior`` and ``hold_yaw``)."""
+        mp = self.config.mapping
+        corner, surf = self._mapping_clouds(features)
+        surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
+        target = self.submap.target(T_world_lidar[:3, 3])
+        return register_to_submap(target, corner, surf, T_world_lidar, mp, iterations, T_prior, hold_yaw)
+
     def _mapping_clouds(self, features: "_RawFeatures") -> tuple[np.ndarray, np.ndarray]:
         """Corner (less-sharp) and surface (less-flat, outliers, ground) clouds, voxel-downsampled."""
         mp = self.config.mapping
@@ -327,10 +340,7 @@ class SlamPipeline:
         T_prior = None
         if self.motion.established and (straight or not step.edge_observed):
             T_prior = previous.T_world_lidar @ exp_se3(self.motion.vehicle_twist() * dt_s)
-        target = self.submap.target(T_world_lidar[:3, 3])
-        corner, surf = self._mapping_clouds(features)
-        surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
-        refined = register_to_submap(target, corner, surf, T_world_lidar, mp, T_prior=T_prior, hold_yaw=straight)
+        refined = self._register(features, T_world_lidar, mp.max_iterations, T_prior=T_prior, hold_yaw=straight)
         if refined.iterations == 0:
             return T_world_lidar, step.used_motion_model, 6, False
         if refined.degenerate_axes:
