@@ -4,7 +4,7 @@ Generates VLP-16-sized bags (16 x 1800 = 28,800 points a scan in the velodyne_po
 921,600 bytes of point data a scan) in a temporary folder (deleted afterwards, never committed),
 then
 
-* reads the whole bag through :class:`lidar3d.io.bag_reader.ScanSource` (bag reading,
+* reads the whole bag through :class:`lidar3d.io.scan_source.ScanSource` (bag reading,
   deserialisation and decoding into ``Scan`` records) several times and reports the median
   throughput in scans per second, for each storage format;
 * reads 1,000- and 3,000-scan ROS1 bags in fresh subprocesses and reports their peak resident
@@ -38,7 +38,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from lidar3d.io.bag_reader import ScanSource  # noqa: E402
+from lidar3d.io.scan_source import ScanSource  # noqa: E402
 from lidar3d.io.bag_writer import write_cloud_bag  # noqa: E402
 from lidar3d.io.pointcloud2 import encode_scan  # noqa: E402
 from lidar3d.records import Scan  # noqa: E402

@@ -1,7 +1,7 @@
 """Peer odometries for the evaluation suite: KISS-ICP and GenZ-ICP, driven through their Python APIs.
 
 Both peers are optional evaluation dependencies (``pip install -e ".[eval]"``). They read the same
-bag as lidar3d, through :class:`lidar3d.io.bag_reader.ScanSource`, and get every point of each scan
+bag as lidar3d, through :class:`lidar3d.io.scan_source.ScanSource`, and get every point of each scan
 with its firing time normalised to 0..1 over the sweep ((t - t_min) / (t_max - t_min)):
 
 * **KISS-ICP** (defaults: max range 100 m, voxel 1 m). Its deskew moves every point to the time
@@ -197,7 +197,7 @@ def make_peer(name: str, *, genz_deskew: bool = True) -> _Odometry:
 
 
 def _timed_scans(bag: Path) -> Iterator[tuple[object, float]]:
-    from lidar3d.io.bag_reader import ScanSource
+    from lidar3d.io.scan_source import ScanSource
 
     with ScanSource(bag) as source:
         scans = iter(source)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 from lidar3d.config import Config
 from lidar3d.errors import Lidar3dError
-from lidar3d.io.bag_reader import ReadStats, open_scan_source
+from lidar3d.io.scan_source import ReadStats, open_scan_source
 from lidar3d.pipeline import PreparedScan, prepare_scan
 
 __all__ = ["PreparedScanStream", "InlineScanStream", "open_prepared_scans"]

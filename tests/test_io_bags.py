@@ -11,7 +11,7 @@ import pytest
 from rosbags.typesys import Stores, get_typestore
 
 from lidar3d.errors import BagError, OutputError, PointCloudError
-from lidar3d.io.bag_reader import ScanSource, open_scan_source
+from lidar3d.io.scan_source import ScanSource, open_scan_source
 from lidar3d.io.bag_writer import write_cloud_bag, write_scan_bag
 from lidar3d.io.pointcloud2 import VELODYNE_FIELDS, encode_scan
 from test_io_pointcloud2 import HESAI, OUSTER, STAMP_NS, assert_scan_equal, build_parts, vlp_scan

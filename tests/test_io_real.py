@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from lidar3d.errors import BagError
-from lidar3d.io.bag_reader import ScanSource
+from lidar3d.io.scan_source import ScanSource
 from lidar3d.io.bag_writer import write_cloud_bag
 from lidar3d.io.pcd import read_pcd
 from lidar3d.io.pointcloud2 import PointCloud2Parts, PointField, PointFieldType, decode_parts

@@ -8,7 +8,7 @@ import pytest
 from lidar3d.cli.cmd_simulate import SCENARIO_HELP
 from lidar3d.cli.main import main
 from lidar3d.errors import OutputError, SimulationError
-from lidar3d.io.bag_reader import ScanSource
+from lidar3d.io.scan_source import ScanSource
 from lidar3d.io.trajectory_io import read_tum
 from lidar3d.sim import SCENARIOS, Simulation, simulate
 

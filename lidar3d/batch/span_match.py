@@ -118,7 +118,7 @@ def log_time_range(path: str | Path, gnss_config=None) -> TimeRange | None:
 
 def bag_time_range(path: str | Path) -> TimeRange | None:
     """Log time of a bag's first and last message (UNIX ns); None when it cannot be read."""
-    from lidar3d.io.bag_reader import ScanSource
+    from lidar3d.io.scan_source import ScanSource
 
     try:
         with ScanSource(path) as source:

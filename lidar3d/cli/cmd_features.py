@@ -153,7 +153,7 @@ def export_front_end(
     from lidar3d.errors import PointCloudError
     from lidar3d.features import STAGES, run_front_end
     from lidar3d.io.atomic import write_text_atomic
-    from lidar3d.io.bag_reader import open_scan_source
+    from lidar3d.io.scan_source import open_scan_source
     from lidar3d.io.pointcloud2 import decode_parts
 
     config = config or Config()

@@ -14,8 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from lidar3d.errors import PointCloudError
-from lidar3d.io.bag_reader import ScanSource, TopicInfo, deserialize_cloud, header_stamp_ns
+from lidar3d.io.bag_inputs import TopicInfo
 from lidar3d.io.pointcloud2 import RING_FIELD_NAMES, PointField, PointFieldType, decode_parts
+from lidar3d.io.scan_decoder import deserialize_cloud, header_stamp_ns
+from lidar3d.io.scan_source import ScanSource
 from lidar3d.sensors import VLP16, SensorModel, guess_sensor_model
 
 __all__ = ["BagInfo", "bag_info", "format_bag_info"]

@@ -19,14 +19,12 @@ from enum import Enum
 from pathlib import Path
 
 from lidar3d.errors import OutputError
-from lidar3d.io.pointcloud2 import PointCloud2Parts, encode_scan, parts_to_message
+from lidar3d.io.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Parts, encode_scan, parts_to_message
 from lidar3d.records import Scan
 
-__all__ = ["BagStorage", "write_scan_bag", "write_cloud_bag", "POINTCLOUD2_TYPE"]
+__all__ = ["BagStorage", "write_scan_bag", "write_cloud_bag"]
 
 logger = logging.getLogger(__name__)
-
-POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
 
 
 class BagStorage(str, Enum):

@@ -15,7 +15,7 @@ section before it is a plain sequence of records (MCAP specification, https://mc
 :class:`McapRecovery` walks them from the start, reads every complete record, and stops at the
 first record cut off by the end of the file. An uncompressed chunk cut short is read record by
 record up to the cut; a compressed one cannot be and is reported by size. It presents the small
-part of a rosbags storage reader's interface that :mod:`lidar3d.io.bag_reader` uses.
+part of a rosbags storage reader's interface that :class:`lidar3d.io.bag_inputs.Ros2BagInput` uses.
 """
 
 from __future__ import annotations

@@ -41,6 +41,7 @@ from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, SensorModel
 
 __all__ = [
+    "POINTCLOUD2_TYPE",
     "PointFieldType",
     "PointField",
     "PointCloud2Parts",
@@ -63,6 +64,8 @@ __all__ = [
 
 logger = logging.getLogger(__name__)
 
+#: The ROS message type (ROS2 spelling) of everything this module encodes and decodes.
+POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
 #: A float time field with values above this many seconds holds absolute times (epoch seconds).
 ABSOLUTE_TIME_THRESHOLD_S = 1.0e5
 _START_TOLERANCE_RAD = 5.0e-4
@@ -203,7 +206,7 @@ def encode_scan(scan: Scan, *, frame_id: str = "velodyne") -> PointCloud2Parts:
 def parts_to_message(parts: PointCloud2Parts, typestore: Any) -> Any:
     """Build the ``sensor_msgs/msg/PointCloud2`` object of a rosbags ``typestore`` (ROS1 or ROS2)."""
     types = typestore.types
-    cloud_type = types["sensor_msgs/msg/PointCloud2"]
+    cloud_type = types[POINTCLOUD2_TYPE]
     field_type = types["sensor_msgs/msg/PointField"]
     header_type = types["std_msgs/msg/Header"]
     time_type = types["builtin_interfaces/msg/Time"]
