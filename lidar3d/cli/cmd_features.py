@@ -150,11 +150,9 @@ def export_front_end(
     import numpy as np
 
     from lidar3d.config import Config, config_to_toml
-    from lidar3d.errors import PointCloudError
     from lidar3d.features import STAGES, run_front_end
     from lidar3d.io.atomic import write_text_atomic
     from lidar3d.io.scan_source import open_scan_source
-    from lidar3d.io.pointcloud2 import decode_parts
 
     config = config or Config()
     out_dir = Path(out_dir)
@@ -162,18 +160,10 @@ def export_front_end(
     write_text_atomic(out_dir / "config.toml", config_to_toml(config))
     written: list[int] = []
     timings: list[dict[str, float]] = []
-    n_seen = 0
     with open_scan_source(bags, config) as source:
-        for index, parts in enumerate(source.clouds()):
-            n_seen = index + 1
-            if stop is not None and index >= stop:
-                break
-            if index < start:
-                continue  # not decoded: skipping is cheap
-            try:
-                scan, _ = decode_parts(parts, sensor=source.sensor, min_range_m=source.min_range_m)
-            except PointCloudError as err:
-                raise PointCloudError(f"{source.label}: {source.topic} at stamp {parts.stamp_ns} ns: {err}") from err
+        n_scans = len(source)
+        # Decoded as `lidar3d run` decodes them (same rings and times); scans before `start` are skipped cheaply.
+        for index, scan in source.scans(start, stop):
             result = run_front_end(scan, config)
             _write_scan_folder(out_dir / f"scan_{index:06d}", result)
             written.append(index)
@@ -181,7 +171,7 @@ def export_front_end(
             log.debug("scan %d: %.1f ms, %d sharp, %d flat", index, result.total_ms,
                       len(result.features.sharp), len(result.features.flat))
     if not written:
-        log.warning("no scan in the range %d:%s (%d scan(s) read)", start, "" if stop is None else stop, n_seen)
+        log.warning("no scan in the range %d:%s (%d scan(s) read)", start, "" if stop is None else stop, n_scans)
         return FeaturesExportSummary(scan_indices=(), median_stage_ms=dict.fromkeys(STAGES, 0.0), median_total_ms=0.0)
     median = {stage: float(np.median([t[stage] for t in timings])) for stage in STAGES}
     total = float(np.median([sum(t.values()) for t in timings]))

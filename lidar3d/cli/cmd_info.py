@@ -24,7 +24,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file or ROS2 bag folder")
     parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one in the bag)")
-    parser.add_argument("--config", metavar="FILE", help="TOML configuration (sensor model for ring-less clouds)")
+    parser.add_argument("--config", metavar="FILE", help="TOML configuration (sensor model, minimum range)")
     parser.set_defaults(func=run)
 
 
@@ -35,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     topic = args.topic or config.input.topic or None
     for index, bag in enumerate(args.bags):
-        report = format_bag_info(bag_info(bag, topic=topic, sensor=config.sensor.sensor))
+        info = bag_info(bag, topic=topic, sensor=config.sensor.sensor, min_range_m=config.sensor.min_range_m)
+        report = format_bag_info(info)
         print(("\n" if index else "") + report, flush=True)
     return 0

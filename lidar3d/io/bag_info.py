@@ -15,7 +15,7 @@ import numpy as np
 
 from lidar3d.errors import PointCloudError
 from lidar3d.io.bag_inputs import TopicInfo
-from lidar3d.io.pointcloud2 import RING_FIELD_NAMES, PointField, PointFieldType, decode_parts
+from lidar3d.io.pointcloud2 import RING_FIELD_NAMES, PointField, PointFieldType
 from lidar3d.io.scan_decoder import deserialize_cloud, header_stamp_ns
 from lidar3d.io.scan_source import ScanSource
 from lidar3d.sensors import VLP16, SensorModel, guess_sensor_model
@@ -78,14 +78,19 @@ def _guess_from_rings(ring: np.ndarray, points: np.ndarray) -> tuple[int, str | 
     return int(values.size), model.name if model else None
 
 
-def bag_info(path: str | Path, *, topic: str | None = None, sensor: SensorModel = VLP16) -> BagInfo:
+def bag_info(
+    path: str | Path, *, topic: str | None = None, sensor: SensorModel = VLP16, min_range_m: float = 0.0
+) -> BagInfo:
     """Summarise the bag at ``path`` (see :class:`BagInfo`).
+
+    The first cloud is decoded as ``lidar3d run`` decodes it (:class:`~lidar3d.io.scan_decoder.ScanDecoder`
+    with ``sensor`` and ``min_range_m``), so the rings counted are the rings a run assigns.
 
     Raises:
         BagError: missing path, not a bag, empty bag, no / several / unknown PointCloud2 topic.
         PointCloudError: the first cloud cannot be decoded.
     """
-    with ScanSource(path, topic=topic, sensor=sensor) as source:
+    with ScanSource(path, topic=topic, sensor=sensor, min_range_m=min_range_m) as source:
         first_parts = None
         first_stamp = last_stamp = None
         n_scans = 0
@@ -100,7 +105,7 @@ def bag_info(path: str | Path, *, topic: str | None = None, sensor: SensorModel 
         names = {f.name for f in first_parts.fields}
         n_rings = model = None
         try:
-            scan, _stats = decode_parts(first_parts, sensor=sensor)
+            scan, _stats = source.make_decoder().decode(first_parts)
         except PointCloudError as err:
             raise PointCloudError(f"{source.label}: first cloud on {source.topic}: {err}") from err
         if names & set(RING_FIELD_NAMES) and len(scan):
