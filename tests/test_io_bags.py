@@ -104,6 +104,17 @@ def test_split_ros1_bags_read_as_one_time_ordered_stream(tmp_path):
         assert_scan_equal(got, want)
 
 
+def test_ros1_and_ros2_inputs_merge_each_deserialised_in_its_own_format(tmp_path):
+    scans = make_scans(6)
+    ros1, ros2 = tmp_path / "a.bag", tmp_path / "b_mcap"
+    write_scan_bag(ros1, scans[0::2])
+    write_scan_bag(ros2, scans[1::2], storage="ros2-mcap")
+    decoded, source = read_all([ros1, ros2])
+    assert source.format.value == "ros1" and len(source) == 6
+    for got, want in zip(decoded, scans, strict=True):
+        assert_scan_equal(got, want)
+
+
 def test_open_scan_source_uses_config_topic_and_min_range(tmp_path):
     from lidar3d.config import Config, InputConfig, SensorConfig
 

@@ -335,12 +335,12 @@ def merged_messages(inputs: Sequence[BagInput], topic: str) -> Iterator[tuple[in
 
     Equal log times keep the order of ``inputs``.
     """
-    streams = [
-        ((log_ns, (opened.fmt, raw)) for log_ns, raw in opened.messages(topic))
-        for opened in inputs
-        if topic in opened.topics
-    ]
-    return merge_by_log_time(streams)
+    return merge_by_log_time([_with_format(opened, topic) for opened in inputs if topic in opened.topics])
+
+
+def _with_format(opened: BagInput, topic: str) -> Iterator[tuple[int, tuple[BagFormat, bytes]]]:
+    for log_ns, raw in opened.messages(topic):
+        yield log_ns, (opened.fmt, raw)
 
 
 def log_time_span(inputs: Sequence[BagInput]) -> tuple[int | None, int | None]:

@@ -52,7 +52,6 @@ __all__ = [
     "encode_scan",
     "parts_to_message",
     "parts_from_message",
-    "decode_pointcloud2",
     "decode_parts",
     "time_from_azimuth",
     "ring_table_from_elevation",
@@ -244,16 +243,6 @@ def parts_from_message(message: Any) -> PointCloud2Parts:
         data=message.data,
         is_dense=bool(message.is_dense),
     )
-
-
-def decode_pointcloud2(
-    message: Any,
-    *,
-    sensor: SensorModel = VLP16,
-    min_range_m: float = 0.0,
-) -> tuple[Scan, DecodeStats]:
-    """Decode a deserialised rosbags ``PointCloud2`` into a :class:`Scan` (see :func:`decode_parts`)."""
-    return decode_parts(parts_from_message(message), sensor=sensor, min_range_m=min_range_m)
 
 
 #: Field names recognised for each role, in order of preference.
