@@ -190,37 +190,41 @@ class ScanSource:
         self.close()
 
     # -- what is in the input (available once opened, also after closing) --------------------
-    def _opened(self) -> ScanSource:
-        if self._topic is None:
+    def _require_opened(self, *, still_open: bool = False) -> None:
+        """Raise unless opened once (and, with ``still_open``, not closed since)."""
+        if self._topic is None or (still_open and not self._inputs):
             raise BagError(f"{self.label}: scan source is not open (use it in a with-block)")
-        return self
 
     @property
     def topics(self) -> dict[str, TopicInfo]:
         """All topics over all inputs (counts summed)."""
-        return dict(self._opened()._topics)
+        self._require_opened()
+        return dict(self._topics)
 
     @property
     def topic(self) -> str:
         """The lidar topic being read."""
-        self._opened()
+        self._require_opened()
         assert self._topic is not None
         return self._topic
 
     @property
     def format(self) -> BagFormat:
         """Container format of the (first) input."""
-        return self._opened()._format
+        self._require_opened()
+        return self._format
 
     @property
     def start_ns(self) -> int | None:
         """Log time of the earliest message of any topic (None for an empty input)."""
-        return self._opened()._start_ns
+        self._require_opened()
+        return self._start_ns
 
     @property
     def end_ns(self) -> int | None:
         """Log time of the latest message of any topic."""
-        return self._opened()._end_ns
+        self._require_opened()
+        return self._end_ns
 
     @property
     def notes(self) -> list[str]:
@@ -240,8 +244,7 @@ class ScanSource:
     # -- reading -------------------------------------------------------------------------------
     def raw_messages(self) -> Iterator[tuple[BagFormat, int, bytes]]:
         """``(format, log time ns, serialised message)`` of the lidar topic, merged by log time."""
-        if not self._inputs:
-            raise BagError(f"{self.label}: scan source is not open (use it in a with-block)")
+        self._require_opened(still_open=True)
         for log_ns, (fmt, raw) in merged_messages(self._inputs, self.topic):
             yield fmt, log_ns, raw
 
@@ -275,6 +278,7 @@ class ScanSource:
                 yield index, scan
 
     def __iter__(self) -> Iterator[Scan]:
+        """Every scan of the lidar topic in log-time order (see :meth:`scans`)."""
         for _index, scan in self.scans():
             yield scan
 
