@@ -34,7 +34,6 @@ from lidar3d.io.bag_reader import open_scan_source
 from lidar3d.prefetch import open_prepared_scans
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.trajectory_io import write_kitti, write_tum
-from lidar3d.mapping.dense_map import build_dense_map
 from lidar3d.pipeline import SlamPipeline, SlamResult
 
 __all__ = ["RunOutcome", "run_bag", "write_outputs"]
@@ -176,16 +175,16 @@ def run_bag(
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
         pipeline.finish()
-        if pipeline.counts.get("loop_closures"):
+        if pipeline.stats.counts.get("loop_closures"):
             # Loop closures moved poses after their scans entered the map: place every scan again.
             t0 = time.perf_counter()
             with open_scan_source(paths, config) as source:
-                scans = itertools.islice(source, start, start + done)
-                pipeline.dense_map = build_dense_map(scans, pipeline.result().trajectory, config)
+                pipeline.rebuild_map(itertools.islice(source, start, start + done))
             extra["map_rebuild_s"] = round(time.perf_counter() - t0, 3)
         finished = True
     finally:
-        pipeline.finish()
+        if not finished:
+            pipeline.finish()  # the last scan enters the map of the partial outputs
         result = pipeline.result(partial=not finished)
         runtime = time.perf_counter() - t_start
         if pipeline.estimates:

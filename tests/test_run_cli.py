@@ -298,11 +298,12 @@ def test_keyboard_interrupt_in_run_bag_keeps_partial_outputs(simulated, truth, t
 
 
 def test_crash_in_the_pipeline_keeps_partial_outputs_and_reraises(simulated, truth, tmp_path, monkeypatch):
+    import lidar3d.mapping.tracker as tracker_module
     import lidar3d.pipeline as pipeline_module
 
     processed = []
     process = pipeline_module.SlamPipeline.process
-    register = pipeline_module.register_to_submap
+    register = tracker_module.register_to_submap
 
     def counting_process(self, scan):
         processed.append(scan.scan.stamp_ns if hasattr(scan, "scan") else scan.stamp_ns)
@@ -314,7 +315,7 @@ def test_crash_in_the_pipeline_keeps_partial_outputs_and_reraises(simulated, tru
         return register(*args, **kwargs)
 
     monkeypatch.setattr(pipeline_module.SlamPipeline, "process", counting_process)
-    monkeypatch.setattr(pipeline_module, "register_to_submap", failing_register)
+    monkeypatch.setattr(tracker_module, "register_to_submap", failing_register)
     out = tmp_path / "out"
     with pytest.raises(RuntimeError, match="injected failure"):  # a bug keeps its traceback
         _run(simulated.bag, "--out", out, "--max-scans", 12)
