@@ -6,7 +6,7 @@ Pure metric code (``association``, ``alignment``, ``ate``, ``rpe``, ``evaluation
 """
 
 from lidar3d.metrics.alignment import AlignmentMode, align_trajectories, umeyama_se3, yaw_alignment
-from lidar3d.metrics.association import Association, associate, interpolate_poses
+from lidar3d.metrics.association import Association, associate, interpolate_reference
 from lidar3d.metrics.ate import AbsoluteErrors, AteStatistics, absolute_errors
 from lidar3d.metrics.errors import EvaluationError
 from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
@@ -32,7 +32,7 @@ __all__ = [
     "evaluate_against_span",
     "evaluate_span_files",
     "evaluate_trajectory",
-    "interpolate_poses",
+    "interpolate_reference",
     "kitti_rpe",
     "read_trajectory",
     "umeyama_se3",
