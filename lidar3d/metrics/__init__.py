@@ -1,8 +1,8 @@
-"""Trajectory metrics: association, alignment (SE(3), yaw, none), ATE, RPE, SPAN evaluation, reports.
+"""Trajectory metrics: association, alignment (SE(3), yaw, none), ATE, RPE, SPAN evaluation.
 
 Pure metric code (``association``, ``alignment``, ``ate``, ``rpe``, ``evaluation``) works on
-:class:`~lidar3d.records.Trajectory` records and arrays; ``span_eval`` adds the SPAN reference and
-``report`` writes files.
+:class:`~lidar3d.records.Trajectory` records and arrays; ``span_eval`` adds the SPAN reference. Nothing
+here writes files: the report (JSON, CSV, plots, text table) is :mod:`lidar3d.export.span_report`.
 """
 
 from lidar3d.metrics.alignment import AlignmentMode, align_trajectories, umeyama_se3, yaw_alignment
@@ -11,7 +11,7 @@ from lidar3d.metrics.ate import AbsoluteErrors, AteStatistics, absolute_errors
 from lidar3d.metrics.errors import EvaluationError
 from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
 from lidar3d.metrics.rpe import DistanceRpe, KittiRpe, distance_rpe, kitti_rpe
-from lidar3d.metrics.span_eval import SpanEvaluation, evaluate_against_span, evaluate_span_files, read_trajectory
+from lidar3d.metrics.span_eval import SpanEvaluation, evaluate_against_span, evaluate_span_files
 from lidar3d.metrics.statistics import ErrorStatistics
 
 __all__ = [
@@ -34,7 +34,6 @@ __all__ = [
     "evaluate_trajectory",
     "interpolate_reference",
     "kitti_rpe",
-    "read_trajectory",
     "umeyama_se3",
     "yaw_alignment",
 ]
