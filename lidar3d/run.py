@@ -93,7 +93,7 @@ def write_outputs(out_dir: Path, result: SlamResult, summary: dict, *, with_map:
 
 def _write_loop_outputs(out_dir: Path, result: SlamResult) -> None:
     """``loops.csv`` (every candidate), ``pose_graph.g2o`` and the top view with closures."""
-    from lidar3d.loop.report import write_loops_csv, write_pose_graph_g2o, write_top_view
+    from lidar3d.export.loop_report import write_loops_csv, write_pose_graph_g2o, write_top_view
 
     write_loops_csv(out_dir / "loops.csv", result.loop_candidates)
     write_pose_graph_g2o(out_dir / "pose_graph.g2o", result.pose_graph_g2o)
@@ -212,17 +212,17 @@ def _check_evaluation_inputs(span_log, extrinsics) -> np.ndarray | None:
 
 
 def _evaluate(result: SlamResult, span_log, T_imu_lidar: np.ndarray | None, config: Config, out: Path) -> dict:
+    from lidar3d.export.span_report import format_span_table, span_report_dict, write_span_report
     from lidar3d.metrics import evaluate_against_span
-    from lidar3d.metrics.report import format_table, report_dict
 
     evaluation = evaluate_against_span(
         result.trajectory,
         span_log,
         T_imu_lidar=T_imu_lidar,
         config=config.gnss,
-        out_dir=out / "eval",
         trajectory_source=str(out / "trajectory_tum.txt"),
     )
+    write_span_report(evaluation, out / "eval")
     log.info("evaluated against %s: report in %s", span_log, out / "eval")
-    report = report_dict(evaluation)
-    return {"report": str(out / "eval"), "table": format_table(evaluation), "ate": report.get("ate")}
+    report = span_report_dict(evaluation)
+    return {"report": str(out / "eval"), "table": format_span_table(evaluation), "ate": report.get("ate")}

@@ -2,8 +2,7 @@
 
 Pure computation (the algorithm layer). GTSAM is imported only by :mod:`lidar3d.loop.pose_graph`,
 Open3D only by :mod:`lidar3d.loop.verification`, both lazily. File outputs (``loops.csv``,
-``pose_graph.g2o``, the top-view PNG) live in the adapter module :mod:`lidar3d.loop.report`, which
-this package does not import.
+``pose_graph.g2o``, the top-view PNG) live in the adapter module :mod:`lidar3d.export.loop_report`.
 """
 
 from lidar3d.loop.candidates import CandidateSet, find_candidates
