@@ -4,6 +4,7 @@ One simulated folder (3 s of the ``loop`` scenario: ROS1 bag, SPAN log, extrinsi
 per module; most tests run SLAM on a handful of its sweeps.
 """
 
+import io
 import json
 import logging
 import re
@@ -12,6 +13,7 @@ import sys
 
 import numpy as np
 import pytest
+from terminal import Terminal, screen_lines
 
 from lidar3d.cli.main import main
 from lidar3d.config import Config, load_config
@@ -200,6 +202,43 @@ def test_python_m_runs_the_cli():
     assert "--max-scans" in done.stdout and "lidar3d run drive.bag --out" in done.stdout
 
 
+# -- progress ----------------------------------------------------------------------------------
+
+BAR = re.compile(r"run: +\d+%\|")
+
+
+def test_log_lines_never_share_a_line_with_the_bar(simulated, tmp_path, monkeypatch):
+    """Records logged while the bar is up (mid-run, and after the last scan as the evaluation's are)
+    go on lines of their own above it, and the final bar is left on screen once (issue 22)."""
+    from lidar3d.cli.progress import ScanProgress
+
+    update = ScanProgress.update
+
+    def logging_update(self, done, total):
+        update(self, done, total)
+        if done in (3, total):
+            logging.getLogger("lidar3d.run").info("record after scan %d", done)
+
+    monkeypatch.setattr(ScanProgress, "update", logging_update)
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    assert main(["run", str(simulated.bag), "--out", str(tmp_path / "out"), "--max-scans", "6"]) == 0
+    lines = screen_lines(terminal.getvalue())
+    records = [line for line in lines if "INFO:" in line]
+    assert records == ["INFO: record after scan 3", "INFO: record after scan 6"]
+    bars = [line for line in lines if BAR.search(line)]
+    assert len(bars) == 1 and lines[-1] == bars[0], lines
+    assert re.match(r"run: 100%\|#+\| 6/6 \[\d\d:\d\d<00:00, +\d+\.\d\d scans/s\]$", bars[0]), bars[0]
+
+
+@pytest.mark.parametrize("quiet, stream", [(True, Terminal), (False, io.StringIO)], ids=["-q", "pipe"])
+def test_no_bar_with_quiet_or_off_a_terminal(quiet, stream, simulated, tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "stderr", stream())
+    argv = ["-q"] * quiet + ["run", str(simulated.bag), "--out", str(tmp_path / "out"), "--max-scans", "3"]
+    assert main(argv) == 0
+    assert "\r" not in sys.stderr.getvalue() and "scans/s" not in sys.stderr.getvalue()
+
+
 # -- errors ------------------------------------------------------------------------------------
 
 
@@ -264,16 +303,16 @@ def _assert_partial_outputs(out, n_scans, truth):
 
 
 def test_keyboard_interrupt_in_the_cli_keeps_partial_outputs(simulated, truth, tmp_path, monkeypatch, capsys):
-    from lidar3d.cli.progress import Progress
+    from lidar3d.cli.progress import ScanProgress
 
-    update = Progress.update
+    update = ScanProgress.update
 
-    def interrupted(self, done):
-        update(self, done)
+    def interrupted(self, done, total):
+        update(self, done, total)
         if done == 5:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(Progress, "update", interrupted)
+    monkeypatch.setattr(ScanProgress, "update", interrupted)
     out = tmp_path / "out"
     code = _run(simulated.bag, "--out", out, "--max-scans", 12)
     captured = capsys.readouterr()
