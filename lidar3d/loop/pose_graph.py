@@ -33,7 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lidar3d.loop.rigid import nearest_rigid
+from lidar3d.mapping.se3 import nearest_rigid
 
 __all__ = ["GraphEdge", "PoseGraph"]
 
@@ -68,7 +68,7 @@ def _symbol(k: int) -> int:
 
 
 def _check_pose(T: np.ndarray, name: str) -> np.ndarray:
-    """A finite 4x4 transform with its rotation projected onto SO(3) (see :mod:`lidar3d.loop.rigid`)."""
+    """A finite 4x4 transform with its rotation projected onto SO(3) (see :func:`lidar3d.mapping.se3.nearest_rigid`)."""
     T = np.asarray(T, dtype=np.float64)
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise ValueError(f"{name} must be a finite (4,4) transform")
