@@ -108,7 +108,7 @@ class SlamPipeline:
 
     def __init__(self, config: Config) -> None:
         self.config = config
-        self.sensor = config.sensor.sensor
+        self.sensor = config.sensor.resolved_model
         odo = config.odometry
         self.odometry = ScanToScanOdometry(
             n_rings=self.sensor.n_rings,
