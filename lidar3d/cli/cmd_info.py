@@ -35,6 +35,6 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     topic = args.topic or config.input.topic or None
     for index, bag in enumerate(args.bags):
-        report = format_bag_info(bag_info(bag, topic=topic, sensor=config.sensor.sensor))
+        report = format_bag_info(bag_info(bag, topic=topic, sensor=config.sensor.resolved_model))
         print(("\n" if index else "") + report, flush=True)
     return 0

@@ -9,7 +9,6 @@ from lidar3d.loop.candidates import CandidateSet, find_candidates
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.pose_graph import GraphEdge, PoseGraph
 from lidar3d.loop.records import LoopCandidate, Verdict
-from lidar3d.loop.rigid import nearest_rigid
 from lidar3d.loop.verification import LoopVerification, build_match_cloud, verify_loop
 
 __all__ = [
@@ -22,7 +21,6 @@ __all__ = [
     "PoseGraph",
     "LoopCandidate",
     "Verdict",
-    "nearest_rigid",
     "LoopVerification",
     "build_match_cloud",
     "verify_loop",

@@ -133,11 +133,11 @@ class Tracker:
     """
 
     def __init__(self, config: Config, submap: Submap) -> None:
-        self._sweep_period_s = config.sensor.sensor.sweep_period_s
+        self._sweep_period_s = config.sensor.resolved_model.sweep_period_s
         self._mapping = config.mapping
         odo = config.odometry
         self._odometry = ScanToScanOdometry(
-            n_rings=config.sensor.sensor.n_rings,
+            n_rings=config.sensor.resolved_model.n_rings,
             max_iterations=odo.max_iterations,
             rematch_every=odo.rematch_every,
             min_rows=odo.min_rows,
