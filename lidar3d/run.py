@@ -5,7 +5,8 @@ Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
 * ``trajectory_tum.txt`` / ``trajectory_kitti.txt`` (+ ``.times.txt``): refined pose of every scan;
 * ``odometry_tum.txt``: scan-to-scan odometry; ``keyframes_tum.txt``: keyframe poses;
 * ``map.pcd``: dense voxel map (deskewed scans placed with the final poses), with intensity;
-* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag;
+* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag
+  (:class:`lidar3d.summary.RunSummary`; read it back with :func:`lidar3d.summary.read_summary`);
 * ``config.toml``: the resolved configuration; ``eval/``: the GNSS report when a SPAN log is given.
 
 Every pose is the lidar pose at the scan's header stamp (sweep start for the velodyne driver).

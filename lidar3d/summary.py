@@ -136,10 +136,6 @@ def _describe(value: Any) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def _without_none(pairs: Mapping[str, Any]) -> dict[str, Any]:
-    return {name: value for name, value in pairs.items() if value is not None}
-
-
 @dataclass(frozen=True, slots=True)
 class StageMedians:
     """Median wall time per scan of each stage, milliseconds, rounded to 0.001 ms.
@@ -169,7 +165,8 @@ class StageMedians:
 
     def as_dict(self) -> dict[str, float]:
         """Stage name -> median ms, as ``summary.json`` holds it (stages that never ran left out)."""
-        return _without_none({field.name: getattr(self, field.name) for field in dataclasses.fields(self)})
+        medians = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        return {stage: ms for stage, ms in medians.items() if ms is not None}
 
     @classmethod
     def _parse(cls, obj: _JsonObject) -> StageMedians:
