@@ -5,7 +5,8 @@ Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
 * ``trajectory_tum.txt`` / ``trajectory_kitti.txt`` (+ ``.times.txt``): refined pose of every scan;
 * ``odometry_tum.txt``: scan-to-scan odometry; ``keyframes_tum.txt``: keyframe poses;
 * ``map.pcd``: dense voxel map (deskewed scans placed with the final poses), with intensity;
-* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag;
+* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag
+  (:class:`lidar3d.summary.RunSummary`; read it back with :func:`lidar3d.summary.read_summary`);
 * ``config.toml``: the resolved configuration; ``eval/``: the GNSS report when a SPAN log is given.
 
 Every pose is the lidar pose at the scan's header stamp (sweep start for the velodyne driver).
@@ -16,8 +17,8 @@ far, marked ``"partial": true``.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
-import json
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -35,6 +36,7 @@ from lidar3d.prefetch import open_prepared_scans
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.trajectory_io import write_kitti, write_tum
 from lidar3d.pipeline import SlamPipeline, SlamResult
+from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
 
 __all__ = ["RunOutcome", "run_bag", "write_outputs"]
 
@@ -46,38 +48,49 @@ class RunOutcome:
     """What :func:`run_bag` produced: the result, the summary written, and the output folder."""
 
     result: SlamResult
-    summary: dict
+    summary: RunSummary
     out_dir: Path
 
 
-def _summary(result: SlamResult, *, inputs: Sequence[str], topic: str, runtime_s: float, read_ms: list[float], extra: dict) -> dict:
+def _summary(
+    result: SlamResult,
+    *,
+    inputs: Sequence[str],
+    topic: str,
+    runtime_s: float,
+    read_ms: list[float],
+    input_stats: InputStatistics | None = None,
+    map_rebuild_s: float | None = None,
+) -> RunSummary:
     n = len(result.trajectory)
+    stamps_ns = result.trajectory.stamps_ns
     stages = {"read": float(np.median(read_ms)) if read_ms else 0.0}
     stages.update({k: float(np.median(v)) for k, v in result.timings_ms.items() if len(v)})
-    return {
-        "lidar3d_version": __version__,
-        "inputs": list(inputs),
-        "topic": topic,
-        "partial": result.partial,
-        "scans": n,
-        "keyframes": len(result.keyframes),
-        "length_m": round(result.trajectory.path_length_m, 3),
-        "duration_s": round((result.trajectory.stamps_ns[-1] - result.trajectory.stamps_ns[0]) * 1e-9, 3) if n else 0.0,
-        "runtime_s": round(runtime_s, 3),
-        "scans_per_s": round(n / runtime_s, 2) if runtime_s > 0 else 0.0,
-        "stage_ms_median": {k: round(v, 3) for k, v in stages.items()},
-        "map_points": int(len(result.map_points)),
-        "loop_closures": int(result.counts.get("loop_closures", 0)),
-        "loop_candidates": len(result.loop_candidates),
-        "loop_ms_total": round(result.loop_ms_total, 1),
-        "counts": result.counts,
-        "warnings": list(result.warnings),
-        "pose_stamp": "header stamp of each scan (sweep start for the velodyne driver)",
-        **extra,
-    }
+    return RunSummary(
+        lidar3d_version=__version__,
+        inputs=tuple(inputs),
+        topic=topic,
+        partial=result.partial,
+        scans=n,
+        keyframes=len(result.keyframes),
+        length_m=float(round(result.trajectory.path_length_m, 3)),
+        duration_s=float(round((stamps_ns[-1] - stamps_ns[0]) * 1e-9, 3)) if n else 0.0,
+        runtime_s=round(runtime_s, 3),
+        scans_per_s=round(n / runtime_s, 2) if runtime_s > 0 else 0.0,
+        stage_ms_median=StageMedians(**{k: round(v, 3) for k, v in stages.items()}),
+        map_points=int(len(result.map_points)),
+        loop_closures=int(result.counts.get("loop_closures", 0)),
+        loop_candidates=len(result.loop_candidates),
+        loop_ms_total=round(result.loop_ms_total, 1),
+        counts=RunCounts(**result.counts),
+        warnings=tuple(result.warnings),
+        pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
+        input_stats=input_stats,
+        map_rebuild_s=map_rebuild_s,
+    )
 
 
-def write_outputs(out_dir: Path, result: SlamResult, summary: dict, *, with_map: bool = True) -> None:
+def write_outputs(out_dir: Path, result: SlamResult, summary: RunSummary, *, with_map: bool = True) -> None:
     """Publish trajectories, (optionally) the map, and the summary, each atomically."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_tum(out_dir / "trajectory_tum.txt", result.trajectory)
@@ -88,7 +101,7 @@ def write_outputs(out_dir: Path, result: SlamResult, summary: dict, *, with_map:
         write_pcd(out_dir / "map.pcd", result.map_points, intensity=result.map_intensity.astype(np.float32))
     if result.pose_graph_g2o:
         _write_loop_outputs(out_dir, result)
-    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_text_atomic(out_dir / "summary.json", summary.to_json())
 
 
 def _write_loop_outputs(out_dir: Path, result: SlamResult) -> None:
@@ -141,7 +154,8 @@ def run_bag(
     t_start = time.perf_counter()
     last_checkpoint = last_map_checkpoint = t_start
     topic = ""
-    extra: dict = {}
+    input_stats: InputStatistics | None = None
+    map_rebuild_s: float | None = None
     finished = False
     try:
         with open_prepared_scans(paths, config, start=start, max_scans=max_scans, prefetch=prefetch) as stream:
@@ -160,18 +174,18 @@ def run_bag(
                 if now - last_checkpoint >= checkpoint_every_s:
                     with_map = now - last_map_checkpoint >= map_checkpoint_every_s
                     result = pipeline.result(partial=True)
-                    summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms, extra=extra)
+                    summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms)
                     write_outputs(out, result, summary, with_map=with_map)
                     last_checkpoint = now
                     if with_map:
                         last_map_checkpoint = now
         stats = stream.stats
-        extra["input_stats"] = {
-            "points_kept": stats.n_points_kept,
-            "nonfinite_dropped": stats.n_nonfinite,
-            "below_min_range_dropped": stats.n_below_min_range,
-            "messages_lost": stats.n_lost_messages,
-        }
+        input_stats = InputStatistics(
+            points_kept=stats.n_points_kept,
+            nonfinite_dropped=stats.n_nonfinite,
+            below_min_range_dropped=stats.n_below_min_range,
+            messages_lost=stats.n_lost_messages,
+        )
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
         pipeline.finish()
@@ -180,7 +194,7 @@ def run_bag(
             t0 = time.perf_counter()
             with open_scan_source(paths, config) as source:
                 pipeline.rebuild_map(itertools.islice(source, start, start + done))
-            extra["map_rebuild_s"] = round(time.perf_counter() - t0, 3)
+            map_rebuild_s = round(time.perf_counter() - t0, 3)
         finished = True
     finally:
         if not finished:
@@ -188,14 +202,23 @@ def run_bag(
         result = pipeline.result(partial=not finished)
         runtime = time.perf_counter() - t_start
         if pipeline.estimates:
-            summary = _summary(result, inputs=inputs, topic=topic, runtime_s=runtime, read_ms=read_ms, extra=extra)
+            summary = _summary(
+                result,
+                inputs=inputs,
+                topic=topic,
+                runtime_s=runtime,
+                read_ms=read_ms,
+                input_stats=input_stats,
+                map_rebuild_s=map_rebuild_s,
+            )
             write_outputs(out, result, summary)
             if not finished:
                 log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
 
     if span_log is not None:
-        summary["evaluation"] = _evaluate(result, span_log, T_imu_lidar, config, out)
-        write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+        evaluation = EvaluationSummary.from_dict(_evaluate(result, span_log, T_imu_lidar, config, out))
+        summary = dataclasses.replace(summary, evaluation=evaluation)
+        write_text_atomic(out / "summary.json", summary.to_json())
     return RunOutcome(result, summary, out)
 
 

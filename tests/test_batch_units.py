@@ -26,6 +26,7 @@ from lidar3d.batch.report import ROW_FIELDS, bag_row, write_report
 from lidar3d.batch.span_match import TimeRangeCache, match_span_logs, resolve_extrinsics
 from lidar3d.cli.main import main
 from lidar3d.errors import BagError, ConfigError, OutputError
+from test_summary import example_summary
 
 S = 10**9
 
@@ -223,8 +224,7 @@ def test_report_files_escape_and_keep_every_field(tmp_path):
         bag_row(name="a<script>", bag=Path("/b/a.bag"), status="failed", batch_dir=tmp_path, error="bad & <worse>"),
         bag_row(
             name="b", bag=Path("/b/b.bag"), status="done", batch_dir=tmp_path,
-            summary={"scans": 20, "length_m": 5.5, "runtime_s": 2.0, "scans_per_s": 10.0, "loop_closures": 2,
-                     "evaluation": {"ate": {"translation_3d_m": {"rmse": 0.25}}}},
+            summary=example_summary(scans=20, length_m=5.5, runtime_s=2.0, scans_per_s=10.0, loop_closures=2),
             eval_report={"rpe_kitti": {"translation_percent": 1.5},
                          "rpe_distance": [{"distance_m": 10.0, "translation_m": {"rmse": 0.1}}]},
             rpe_distance_m=10.0,
@@ -249,7 +249,7 @@ def test_progress_counts_rates_and_time_left():
     progress.started("a")
     progress.scan("a", 5, 10)
     assert progress.scans_done == 5 and progress.eta_s > 0
-    progress.finished_job(JobResult("a", JobStatus.DONE, summary={"scans": 10}))
+    progress.finished_job(JobResult("a", JobStatus.DONE, summary=example_summary(scans=10)))
     progress.finished_job(JobResult("b", JobStatus.FAILED, error="x"))
     assert progress.finished == 3 and progress.scans_done == 10
     assert progress.line().startswith("batch: 3/3 bags (1 up to date, 1 failed)")
@@ -327,7 +327,7 @@ def crash_or_succeed(job, should_stop=None, on_scan=None):
         os._exit(3)
     if on_scan is not None:
         on_scan(job.name, 1, 1)
-    return JobResult(job.name, JobStatus.DONE, summary={"scans": 1})
+    return JobResult(job.name, JobStatus.DONE, summary=example_summary(scans=1))
 
 
 class ListSink:

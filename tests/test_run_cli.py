@@ -5,7 +5,6 @@ per module; most tests run SLAM on a handful of its sweeps.
 """
 
 import io
-import json
 import logging
 import re
 import subprocess
@@ -22,6 +21,7 @@ from lidar3d.io.bag_writer import write_scan_bag
 from lidar3d.io.pcd import read_pcd
 from lidar3d.io.trajectory_io import read_kitti, read_tum
 from lidar3d.run import run_bag
+from lidar3d.summary import read_summary
 
 sim = pytest.importorskip("lidar3d.sim")
 
@@ -37,10 +37,6 @@ OUTPUT_FILES = (
     "summary.json",
     "config.toml",
 )
-SUMMARY_KEYS = {
-    "lidar3d_version", "inputs", "topic", "partial", "scans", "keyframes", "length_m", "duration_s",
-    "runtime_s", "scans_per_s", "stage_ms_median", "map_points", "counts", "warnings", "pose_stamp",
-}
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -90,7 +86,7 @@ def window_run(simulated, tmp_path_factory):
 
 
 def _summary(out):
-    return json.loads((out / "summary.json").read_text())
+    return read_summary(out / "summary.json")
 
 
 def _no_temporary_files(out):
@@ -121,21 +117,20 @@ def test_every_output_exists_and_parses(full_run, truth):
     assert np.array_equal(kitti.stamps_ns, truth.stamps_ns)
     assert np.allclose(kitti.T_world_lidar, trajectory.T_world_lidar, atol=1e-5)
 
-    summary = _summary(out)
-    assert SUMMARY_KEYS <= set(summary)
-    assert summary["partial"] is False and summary["scans"] == N_SCANS and summary["counts"]["scans"] == N_SCANS
-    assert summary["topic"] == "/velodyne_points" and summary["keyframes"] == len(keyframes)
-    assert summary["length_m"] == pytest.approx(truth.path_length_m, rel=0.03)
-    assert summary["duration_s"] == pytest.approx((N_SCANS - 1) * 0.1)
-    assert {"read", "odometry", "mapping"} <= set(summary["stage_ms_median"])
-    assert summary["warnings"] == []
+    summary = _summary(out)  # every key present and of its type, or read_summary raises
+    assert summary.partial is False and summary.scans == N_SCANS and summary.counts.scans == N_SCANS
+    assert summary.topic == "/velodyne_points" and summary.keyframes == len(keyframes)
+    assert summary.length_m == pytest.approx(truth.path_length_m, rel=0.03)
+    assert summary.duration_s == pytest.approx((N_SCANS - 1) * 0.1)
+    assert summary.stage_ms_median.odometry > 0 and summary.stage_ms_median.mapping > 0
+    assert summary.warnings == ()
 
     assert load_config(out / "config.toml") == Config()
 
 
 def test_map_pcd_has_intensity_and_z_up(full_run):
     points, fields = read_pcd(full_run / "map.pcd")
-    assert len(points) == _summary(full_run)["map_points"] > 10_000
+    assert len(points) == _summary(full_run).map_points > 10_000
     assert set(fields) == {"intensity"} and fields["intensity"].shape == (len(points),)
     intensity = fields["intensity"]
     assert np.all(np.isfinite(intensity)) and 0.0 <= intensity.min() < intensity.max() <= 255.0
@@ -147,11 +142,11 @@ def test_map_pcd_has_intensity_and_z_up(full_run):
 
 
 def test_span_evaluation_writes_a_report_and_an_ate(full_run):
-    evaluation = _summary(full_run)["evaluation"]
+    evaluation = _summary(full_run).evaluation
     assert (full_run / "eval" / "report.json").is_file()
-    assert evaluation["report"] == str(full_run / "eval")
-    ate = evaluation["ate"]["translation_3d_m"]
-    assert ate["n"] >= 20 and ate["rmse"] < 0.05
+    assert evaluation is not None and evaluation.report == str(full_run / "eval")
+    ate = evaluation.ate.translation_3d_m
+    assert ate.n >= 20 and ate.rmse < 0.05
 
 
 # -- options -----------------------------------------------------------------------------------
@@ -161,7 +156,7 @@ def test_start_and_max_scans_select_the_window(window_run, truth):
     trajectory = read_tum(window_run / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, truth.stamps_ns[WINDOW.start : WINDOW.stop])
     summary = _summary(window_run)
-    assert summary["scans"] == len(WINDOW) and summary["partial"] is False
+    assert summary.scans == len(WINDOW) and summary.partial is False
     # The world is the first processed pose; the motion matches the truth over the window.
     true_motion = np.linalg.inv(truth.T_world_lidar[WINDOW.start]) @ truth.T_world_lidar[WINDOW.stop - 1]
     assert np.allclose(trajectory.T_world_lidar[-1][:3, 3], true_motion[:3, 3], atol=0.05)
@@ -191,7 +186,7 @@ def test_ros2_bags_give_the_same_result(storage, sweeps, window_run, tmp_path):
     trajectory = read_tum(out / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, reference.stamps_ns)
     assert np.allclose(trajectory.T_world_lidar, reference.T_world_lidar, atol=1e-6)
-    assert _summary(out)["map_points"] == _summary(window_run)["map_points"]
+    assert _summary(out).map_points == _summary(window_run).map_points
 
 
 def test_python_m_runs_the_cli():
@@ -293,13 +288,13 @@ def _assert_partial_outputs(out, n_scans, truth):
         assert (out / name).is_file(), name
     assert _no_temporary_files(out)
     summary = _summary(out)
-    assert summary["partial"] is True and summary["scans"] == n_scans
+    assert summary.partial is True and summary.scans == n_scans
     trajectory = read_tum(out / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, truth.stamps_ns[:n_scans])
     assert len(read_kitti(out / "trajectory_kitti.txt")) == n_scans
     assert len(read_tum(out / "odometry_tum.txt")) == n_scans
     points, fields = read_pcd(out / "map.pcd")
-    assert len(points) == summary["map_points"] > 1000 and len(fields["intensity"]) == len(points)
+    assert len(points) == summary.map_points > 1000 and len(fields["intensity"]) == len(points)
 
 
 def test_keyboard_interrupt_in_the_cli_keeps_partial_outputs(simulated, truth, tmp_path, monkeypatch, capsys):
@@ -369,13 +364,13 @@ def test_checkpoints_publish_the_run_so_far(simulated, truth, tmp_path):
         if done >= 2:  # the checkpoint after scan done - 1 is on disk
             summary = _summary(out)
             trajectory = read_tum(out / "trajectory_tum.txt")
-            seen.append((summary["partial"], summary["scans"], len(trajectory), (out / "map.pcd").is_file()))
+            seen.append((summary.partial, summary.scans, len(trajectory), (out / "map.pcd").is_file()))
 
     outcome = run_bag(
         simulated.bag, out, max_scans=5, on_scan=on_scan, checkpoint_every_s=0.0, map_checkpoint_every_s=0.0
     )
     assert seen == [(True, n, n, True) for n in range(1, 5)]
-    assert outcome.summary["partial"] is False and _summary(out)["scans"] == 5
+    assert outcome.summary.partial is False and _summary(out).scans == 5
     assert np.array_equal(read_tum(out / "trajectory_tum.txt").stamps_ns, truth.stamps_ns[:5])
 
 
@@ -393,10 +388,10 @@ def test_featureless_sweeps_and_duplicates_reach_the_summary(sweeps, tmp_path, c
     assert _run(bag, "--out", out) == 0
     printed = capsys.readouterr().out
     summary = _summary(out)
-    assert summary["scans"] == 8 and summary["partial"] is False
-    assert summary["counts"]["dropped_duplicate_stamps"] == 1
-    assert summary["counts"]["motion_model_scans"] == 2
-    assert summary["warnings"] == ["scans 2-3: too few features, pose from the motion model"]
+    assert summary.scans == 8 and summary.partial is False
+    assert summary.counts.dropped_duplicate_stamps == 1
+    assert summary.counts.motion_model_scans == 2
+    assert summary.warnings == ("scans 2-3: too few features, pose from the motion model",)
     assert "warning: scans 2-3: too few features" in printed
     trajectory = read_tum(out / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, [s.stamp_ns for s in sweeps[10:18]])

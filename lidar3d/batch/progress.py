@@ -71,8 +71,8 @@ class BatchProgress:
     def finished_job(self, result: JobResult) -> None:
         self.running.pop(result.name, None)
         self.results[result.name] = result
-        if result.summary:
-            self.scans_finished += int(result.summary.get("scans", 0))
+        if result.summary is not None:
+            self.scans_finished += result.summary.scans
 
     @property
     def elapsed_s(self) -> float:
@@ -141,12 +141,10 @@ class BatchProgress:
 
 
 def _describe(result: JobResult) -> str:
-    s = result.summary or {}
+    s = result.summary
     if result.status is JobStatus.DONE:
-        text = (
-            f"{s.get('scans', 0)} scans, {s.get('length_m', 0.0):.1f} m, {result.wall_s:.1f} s "
-            f"({s.get('scans_per_s', 0.0):.1f} scans/s)"
-        )
+        scans, length_m, scans_per_s = (s.scans, s.length_m, s.scans_per_s) if s is not None else (0, 0.0, 0.0)
+        text = f"{scans} scans, {length_m:.1f} m, {result.wall_s:.1f} s ({scans_per_s:.1f} scans/s)"
         return text + (f"; {result.note}" if result.note else "")
     return result.error or ""
 

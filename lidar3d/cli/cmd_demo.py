@@ -48,9 +48,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         progress.close()
     s = outcome.summary
-    print(f"{s['scans']} scans, {s['length_m']:.1f} m in {s['runtime_s']:.1f} s ({s['scans_per_s']:.1f} scans/s)")
-    if "evaluation" in s:
-        print(s["evaluation"]["table"])
+    print(f"{s.scans} scans, {s.length_m:.1f} m in {s.runtime_s:.1f} s ({s.scans_per_s:.1f} scans/s)")
+    if s.evaluation is not None:
+        print(s.evaluation.table)
     print("outputs:")
     print(f"  map:          {slam_dir / 'map.pcd'}")
     print(f"  trajectory:   {slam_dir / 'trajectory_tum.txt'} (and trajectory_kitti.txt)")

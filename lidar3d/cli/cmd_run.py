@@ -73,12 +73,12 @@ def run(args: argparse.Namespace) -> int:
         progress.close()
     s = outcome.summary
     print(
-        f"{s['scans']} scans, {s['length_m']:.1f} m, {s['runtime_s']:.1f} s ({s['scans_per_s']:.1f} scans/s), "
-        f"{s['keyframes']} keyframes, {s['loop_closures']} loop closures, {s['map_points']} map points"
+        f"{s.scans} scans, {s.length_m:.1f} m, {s.runtime_s:.1f} s ({s.scans_per_s:.1f} scans/s), "
+        f"{s.keyframes} keyframes, {s.loop_closures} loop closures, {s.map_points} map points"
     )
-    for warning in s["warnings"]:
+    for warning in s.warnings:
         print(f"warning: {warning}")
-    if "evaluation" in s:
-        print(s["evaluation"]["table"])
+    if s.evaluation is not None:
+        print(s.evaluation.table)
     print(f"outputs in {outcome.out_dir}/")
     return 0
