@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import subprocess
 import sys
 import tempfile
@@ -25,6 +24,7 @@ import numpy as np
 from lidar3d.io.bag_writer import write_scan_bag
 from lidar3d.records import Scan
 from lidar3d.sim import Simulation
+from lidar3d.summary import read_summary
 
 
 def _tree_rss_kib(pid: int) -> int:
@@ -71,9 +71,9 @@ def measure(bag: Path, out: Path) -> dict:
     wall = time.perf_counter() - t0
     if process.returncode != 0:
         raise SystemExit(f"lidar3d run failed: {process.stderr.read()}")
-    summary = json.loads((out / "summary.json").read_text())
-    return {"scans": summary["scans"], "peak_rss_mib": round(peak / 1024, 1), "wall_s": round(wall, 1),
-            "keyframes": summary["keyframes"], "map_points": summary["map_points"]}
+    summary = read_summary(out / "summary.json")
+    return {"scans": summary.scans, "peak_rss_mib": round(peak / 1024, 1), "wall_s": round(wall, 1),
+            "keyframes": summary.keyframes, "map_points": summary.map_points}
 
 
 def main() -> None:

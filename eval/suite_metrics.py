@@ -89,6 +89,7 @@ def score_trajectory(
     With ``report_dir``, the SPAN evaluation's report (JSON, CSV, plots) is written there.
     """
     from lidar3d.errors import Lidar3dError
+    from lidar3d.export.span_report import write_span_report
     from lidar3d.gnss.extrinsic import read_extrinsic
     from lidar3d.io.trajectory_io import read_tum
     from lidar3d.metrics import evaluate_against_span, evaluate_trajectory
@@ -108,9 +109,10 @@ def score_trajectory(
             estimate,
             span_log,
             T_imu_lidar=read_extrinsic(extrinsics),
-            out_dir=report_dir,
             trajectory_source=str(trajectory_path),
         )
+        if report_dir is not None:
+            write_span_report(span_eval, report_dir)
         scores["span"] = _evaluation_dict(span_eval.evaluation)
     except (Lidar3dError, ValueError) as err:
         scores["span"] = {"error": str(err)}

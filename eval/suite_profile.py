@@ -109,7 +109,7 @@ def profile_scenario(args: argparse.Namespace) -> int:
     summary = outcome.summary
     print()
     print(f"== time per stage (pipeline timers; profiler: {profiler_name}) ==")
-    print(stage_table(dict(outcome.result.timings_ms), float(summary["runtime_s"]), int(summary["scans"])))
+    print(stage_table(dict(outcome.result.timings_ms), summary.runtime_s, summary.scans))
     print(f"(profiled run took {elapsed:.1f} s including the final writes; outputs in {out_dir / 'run'})")
     print()
     print("== time per function ==")

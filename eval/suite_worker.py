@@ -80,14 +80,14 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool 
     timings = {k: np.asarray(v) for k, v in outcome.result.timings_ms.items()}
     return {
         "method": "lidar3d",
-        "scans": int(summary["scans"]),
-        "wall_s": float(summary["runtime_s"]),
-        "scans_per_s": float(summary["scans_per_s"]),
+        "scans": summary.scans,
+        "wall_s": summary.runtime_s,
+        "scans_per_s": summary.scans_per_s,
         "stage_ms": _stage_stats(timings),
-        "stage_ms_median_summary": summary.get("stage_ms_median", {}),
-        "counts": summary.get("counts", {}),
-        "keyframes": summary.get("keyframes"),
-        "warnings": summary.get("warnings", []),
+        "stage_ms_median_summary": summary.stage_ms_median.as_dict(),
+        "counts": summary.counts.as_dict(),
+        "keyframes": summary.keyframes,
+        "warnings": list(summary.warnings),
         "pose_instant": "header stamp (sweep start)",
         "settings": {"config": "lidar3d defaults (see config.toml)" + ("" if loop_closure else ", loop closure off")},
     }

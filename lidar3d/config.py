@@ -41,27 +41,29 @@ __all__ = [
 
 @dataclass(frozen=True, slots=True)
 class SensorConfig:
-    """Sensor geometry. ``model`` picks a preset; non-empty overrides replace its values."""
+    """Sensor geometry: ``model`` names a preset of :data:`lidar3d.sensors.SENSOR_MODELS`; the
+    ``*_override*`` fields replace single values of that preset, and their zero/empty default means
+    "keep the preset's value". :attr:`resolved_model` is the geometry in force."""
 
     model: str = "vlp16"
-    elevation_deg: tuple[float, ...] = ()  # empty: the preset's table
-    n_columns: int = 0  # 0: the preset's value
-    rotation_hz: float = 0.0  # 0: the preset's value
+    elevation_override_deg: tuple[float, ...] = ()  # beam elevation table (ascending); empty: the preset's
+    n_columns_override: int = 0  # azimuth cells per sweep; 0: the preset's
+    rotation_override_hz: float = 0.0  # sweeps per second; 0: the preset's
+    max_range_override_m: float = 0.0  # farthest return kept; 0: the preset's rated range
     min_range_m: float = 1.0  # LeGO-LOAM sensorMinimumRange
-    max_range_m: float = 0.0  # 0: the preset's rated range
     mount_pitch_deg: float = 0.0  # LeGO-LOAM sensorMountAngle
     mount_roll_deg: float = 0.0
 
     @property
-    def sensor(self) -> SensorModel:
-        """The resolved sensor model (preset plus overrides)."""
+    def resolved_model(self) -> SensorModel:
+        """The preset called ``model`` with the overrides applied: the geometry every stage uses."""
         base = SENSOR_MODELS[self.model]
         return SensorModel(
             name=base.name,
-            elevation_deg=tuple(self.elevation_deg) or base.elevation_deg,
-            n_columns=self.n_columns or base.n_columns,
-            rotation_hz=self.rotation_hz or base.rotation_hz,
-            max_range_m=self.max_range_m or base.max_range_m,
+            elevation_deg=tuple(self.elevation_override_deg) or base.elevation_deg,
+            n_columns=self.n_columns_override or base.n_columns,
+            rotation_hz=self.rotation_override_hz or base.rotation_hz,
+            max_range_m=self.max_range_override_m or base.max_range_m,
         )
 
 
@@ -295,7 +297,7 @@ def _validate(config: Config) -> Config:
             f"config sensor.model: unknown model {config.sensor.model!r} (known: {', '.join(SENSOR_MODELS)})"
         )
     try:
-        sensor = config.sensor.sensor
+        sensor = config.sensor.resolved_model
     except ValueError as err:
         raise ConfigError(f"config sensor: {err}") from err
     if config.segmentation.ground_rows > sensor.n_rings:
@@ -345,8 +347,20 @@ def _toml_value(value: Any) -> str:
     raise TypeError(f"cannot write {value!r} as TOML")
 
 
+def _describe_sensor(sensor: SensorModel) -> str:
+    """One line with a sensor's geometry, e.g. ``vlp16, 16 rings -15.0..15.0 deg, 1800 columns, ...``."""
+    return (
+        f"{sensor.name}, {sensor.n_rings} rings {sensor.elevation_deg[0]}..{sensor.elevation_deg[-1]} deg, "
+        f"{sensor.n_columns} columns, {sensor.rotation_hz} Hz, max range {sensor.max_range_m} m"
+    )
+
+
 def config_to_toml(config: Config) -> str:
-    """The configuration as TOML text that :func:`load_config` reads back to an equal object."""
+    """The configuration as TOML text that :func:`load_config` reads back to an equal object.
+
+    The ``[sensor]`` section ends with a comment giving the resolved sensor geometry (preset plus
+    overrides), so the numbers in force are visible even where an override is left at "preset".
+    """
     lines = ["# lidar3d configuration (every key optional; these are the values in force)"]
     for section in dataclasses.fields(config):
         lines.append("")
@@ -354,4 +368,7 @@ def config_to_toml(config: Config) -> str:
         doc_fields = getattr(config, section.name)
         for f in dataclasses.fields(doc_fields):
             lines.append(f"{f.name} = {_toml_value(getattr(doc_fields, f.name))}")
+        if isinstance(doc_fields, SensorConfig):
+            lines.append("# 0 or [] in an *_override* key keeps the preset's value; the geometry in force:")
+            lines.append(f"# {_describe_sensor(doc_fields.resolved_model)}")
     return "\n".join(lines) + "\n"

@@ -14,6 +14,7 @@ __all__ = [
     "RegistrationError",
     "SimulationError",
     "OutputError",
+    "SummaryError",
 ]
 
 
@@ -47,3 +48,7 @@ class SimulationError(Lidar3dError):
 
 class OutputError(Lidar3dError):
     """An output cannot be written."""
+
+
+class SummaryError(Lidar3dError):
+    """A run folder's ``summary.json`` is missing, not JSON, or not of the expected layout."""

@@ -2,7 +2,7 @@
 
 The front end depends on nothing but the scan, so a child process can read the bag and run it
 while the main process deskews, registers and maps the previous scans: on a 2-core machine the two
-halves of the work overlap. The child sends :class:`~lidar3d.pipeline.PreparedScan` records
+halves of the work overlap. The child sends :class:`~lidar3d.features.frontend.PreparedScan` records
 through a bounded queue; errors raised there (a bad bag, a decode error) are re-raised here
 unchanged, so the user sees the same one-line message as without prefetching.
 """
@@ -19,8 +19,8 @@ from pathlib import Path
 
 from lidar3d.config import Config
 from lidar3d.errors import Lidar3dError
+from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.io.scan_source import ReadStats, open_scan_source
-from lidar3d.pipeline import PreparedScan, prepare_scan
 
 __all__ = ["PreparedScanStream", "InlineScanStream", "open_prepared_scans"]
 

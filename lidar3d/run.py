@@ -5,7 +5,8 @@ Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
 * ``trajectory_tum.txt`` / ``trajectory_kitti.txt`` (+ ``.times.txt``): refined pose of every scan;
 * ``odometry_tum.txt``: scan-to-scan odometry; ``keyframes_tum.txt``: keyframe poses;
 * ``map.pcd``: dense voxel map (deskewed scans placed with the final poses), with intensity;
-* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag;
+* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag
+  (:class:`lidar3d.summary.RunSummary`; read it back with :func:`lidar3d.summary.read_summary`);
 * ``config.toml``: the resolved configuration; ``eval/``: the GNSS report when a SPAN log is given.
 
 Every pose is the lidar pose at the scan's header stamp (sweep start for the velodyne driver).
@@ -16,8 +17,8 @@ far, marked ``"partial": true``.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
-import json
 import logging
 import time
 from collections.abc import Callable, Sequence
@@ -34,8 +35,8 @@ from lidar3d.io.scan_source import open_scan_source
 from lidar3d.prefetch import open_prepared_scans
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.trajectory_io import write_kitti, write_tum
-from lidar3d.mapping.dense_map import build_dense_map
 from lidar3d.pipeline import SlamPipeline, SlamResult
+from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
 
 __all__ = ["RunOutcome", "run_bag", "write_outputs"]
 
@@ -47,38 +48,49 @@ class RunOutcome:
     """What :func:`run_bag` produced: the result, the summary written, and the output folder."""
 
     result: SlamResult
-    summary: dict
+    summary: RunSummary
     out_dir: Path
 
 
-def _summary(result: SlamResult, *, inputs: Sequence[str], topic: str, runtime_s: float, read_ms: list[float], extra: dict) -> dict:
+def _summary(
+    result: SlamResult,
+    *,
+    inputs: Sequence[str],
+    topic: str,
+    runtime_s: float,
+    read_ms: list[float],
+    input_stats: InputStatistics | None = None,
+    map_rebuild_s: float | None = None,
+) -> RunSummary:
     n = len(result.trajectory)
+    stamps_ns = result.trajectory.stamps_ns
     stages = {"read": float(np.median(read_ms)) if read_ms else 0.0}
     stages.update({k: float(np.median(v)) for k, v in result.timings_ms.items() if len(v)})
-    return {
-        "lidar3d_version": __version__,
-        "inputs": list(inputs),
-        "topic": topic,
-        "partial": result.partial,
-        "scans": n,
-        "keyframes": len(result.keyframes),
-        "length_m": round(result.trajectory.path_length_m, 3),
-        "duration_s": round((result.trajectory.stamps_ns[-1] - result.trajectory.stamps_ns[0]) * 1e-9, 3) if n else 0.0,
-        "runtime_s": round(runtime_s, 3),
-        "scans_per_s": round(n / runtime_s, 2) if runtime_s > 0 else 0.0,
-        "stage_ms_median": {k: round(v, 3) for k, v in stages.items()},
-        "map_points": int(len(result.map_points)),
-        "loop_closures": int(result.counts.get("loop_closures", 0)),
-        "loop_candidates": len(result.loop_candidates),
-        "loop_ms_total": round(result.loop_ms_total, 1),
-        "counts": result.counts,
-        "warnings": list(result.warnings),
-        "pose_stamp": "header stamp of each scan (sweep start for the velodyne driver)",
-        **extra,
-    }
+    return RunSummary(
+        lidar3d_version=__version__,
+        inputs=tuple(inputs),
+        topic=topic,
+        partial=result.partial,
+        scans=n,
+        keyframes=len(result.keyframes),
+        length_m=float(round(result.trajectory.path_length_m, 3)),
+        duration_s=float(round((stamps_ns[-1] - stamps_ns[0]) * 1e-9, 3)) if n else 0.0,
+        runtime_s=round(runtime_s, 3),
+        scans_per_s=round(n / runtime_s, 2) if runtime_s > 0 else 0.0,
+        stage_ms_median=StageMedians(**{k: round(v, 3) for k, v in stages.items()}),
+        map_points=int(len(result.map_points)),
+        loop_closures=int(result.counts.get("loop_closures", 0)),
+        loop_candidates=len(result.loop_candidates),
+        loop_ms_total=round(result.loop_ms_total, 1),
+        counts=RunCounts(**result.counts),
+        warnings=tuple(result.warnings),
+        pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
+        input_stats=input_stats,
+        map_rebuild_s=map_rebuild_s,
+    )
 
 
-def write_outputs(out_dir: Path, result: SlamResult, summary: dict, *, with_map: bool = True) -> None:
+def write_outputs(out_dir: Path, result: SlamResult, summary: RunSummary, *, with_map: bool = True) -> None:
     """Publish trajectories, (optionally) the map, and the summary, each atomically."""
     out_dir.mkdir(parents=True, exist_ok=True)
     write_tum(out_dir / "trajectory_tum.txt", result.trajectory)
@@ -89,12 +101,12 @@ def write_outputs(out_dir: Path, result: SlamResult, summary: dict, *, with_map:
         write_pcd(out_dir / "map.pcd", result.map_points, intensity=result.map_intensity.astype(np.float32))
     if result.pose_graph_g2o:
         _write_loop_outputs(out_dir, result)
-    write_text_atomic(out_dir / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_text_atomic(out_dir / "summary.json", summary.to_json())
 
 
 def _write_loop_outputs(out_dir: Path, result: SlamResult) -> None:
     """``loops.csv`` (every candidate), ``pose_graph.g2o`` and the top view with closures."""
-    from lidar3d.loop.report import write_loops_csv, write_pose_graph_g2o, write_top_view
+    from lidar3d.export.loop_report import write_loops_csv, write_pose_graph_g2o, write_top_view
 
     write_loops_csv(out_dir / "loops.csv", result.loop_candidates)
     write_pose_graph_g2o(out_dir / "pose_graph.g2o", result.pose_graph_g2o)
@@ -142,7 +154,8 @@ def run_bag(
     t_start = time.perf_counter()
     last_checkpoint = last_map_checkpoint = t_start
     topic = ""
-    extra: dict = {}
+    input_stats: InputStatistics | None = None
+    map_rebuild_s: float | None = None
     finished = False
     try:
         with open_prepared_scans(paths, config, start=start, max_scans=max_scans, prefetch=prefetch) as stream:
@@ -161,42 +174,51 @@ def run_bag(
                 if now - last_checkpoint >= checkpoint_every_s:
                     with_map = now - last_map_checkpoint >= map_checkpoint_every_s
                     result = pipeline.result(partial=True)
-                    summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms, extra=extra)
+                    summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms)
                     write_outputs(out, result, summary, with_map=with_map)
                     last_checkpoint = now
                     if with_map:
                         last_map_checkpoint = now
         stats = stream.stats
-        extra["input_stats"] = {
-            "points_kept": stats.n_points_kept,
-            "nonfinite_dropped": stats.n_nonfinite,
-            "below_min_range_dropped": stats.n_below_min_range,
-            "messages_lost": stats.n_lost_messages,
-        }
+        input_stats = InputStatistics(
+            points_kept=stats.n_points_kept,
+            nonfinite_dropped=stats.n_nonfinite,
+            below_min_range_dropped=stats.n_below_min_range,
+            messages_lost=stats.n_lost_messages,
+        )
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
         pipeline.finish()
-        if pipeline.counts.get("loop_closures"):
+        if pipeline.stats.counts.get("loop_closures"):
             # Loop closures moved poses after their scans entered the map: place every scan again.
             t0 = time.perf_counter()
             with open_scan_source(paths, config) as source:
-                scans = itertools.islice(source, start, start + done)
-                pipeline.dense_map = build_dense_map(scans, pipeline.result().trajectory, config)
-            extra["map_rebuild_s"] = round(time.perf_counter() - t0, 3)
+                pipeline.rebuild_map(itertools.islice(source, start, start + done))
+            map_rebuild_s = round(time.perf_counter() - t0, 3)
         finished = True
     finally:
-        pipeline.finish()
+        if not finished:
+            pipeline.finish()  # the last scan enters the map of the partial outputs
         result = pipeline.result(partial=not finished)
         runtime = time.perf_counter() - t_start
         if pipeline.estimates:
-            summary = _summary(result, inputs=inputs, topic=topic, runtime_s=runtime, read_ms=read_ms, extra=extra)
+            summary = _summary(
+                result,
+                inputs=inputs,
+                topic=topic,
+                runtime_s=runtime,
+                read_ms=read_ms,
+                input_stats=input_stats,
+                map_rebuild_s=map_rebuild_s,
+            )
             write_outputs(out, result, summary)
             if not finished:
                 log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
 
     if span_log is not None:
-        summary["evaluation"] = _evaluate(result, span_log, T_imu_lidar, config, out)
-        write_text_atomic(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+        evaluation = EvaluationSummary.from_dict(_evaluate(result, span_log, T_imu_lidar, config, out))
+        summary = dataclasses.replace(summary, evaluation=evaluation)
+        write_text_atomic(out / "summary.json", summary.to_json())
     return RunOutcome(result, summary, out)
 
 
@@ -213,17 +235,17 @@ def _check_evaluation_inputs(span_log, extrinsics) -> np.ndarray | None:
 
 
 def _evaluate(result: SlamResult, span_log, T_imu_lidar: np.ndarray | None, config: Config, out: Path) -> dict:
+    from lidar3d.export.span_report import format_span_table, span_report_dict, write_span_report
     from lidar3d.metrics import evaluate_against_span
-    from lidar3d.metrics.report import format_table, report_dict
 
     evaluation = evaluate_against_span(
         result.trajectory,
         span_log,
         T_imu_lidar=T_imu_lidar,
         config=config.gnss,
-        out_dir=out / "eval",
         trajectory_source=str(out / "trajectory_tum.txt"),
     )
+    write_span_report(evaluation, out / "eval")
     log.info("evaluated against %s: report in %s", span_log, out / "eval")
-    report = report_dict(evaluation)
-    return {"report": str(out / "eval"), "table": format_table(evaluation), "ate": report.get("ate")}
+    report = span_report_dict(evaluation)
+    return {"report": str(out / "eval"), "table": format_span_table(evaluation), "ate": report.get("ate")}

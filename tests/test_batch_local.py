@@ -24,6 +24,7 @@ import pytest
 from lidar3d.batch import JobStatus, run_batch
 from lidar3d.batch.jobs import JOB_FILE
 from lidar3d.cli.main import main
+from lidar3d.summary import read_summary
 
 DURATION_S = 2.0
 HOUR_NS = 3600 * 10**9
@@ -93,9 +94,10 @@ def test_corrupt_bag_is_reported_and_the_others_finish(first_run, drives):
         assert row["plots"] and all((out / p).is_file() for p in row["plots"])
         for output in (*OUTPUTS, "summary.json", "config.toml", JOB_FILE, "eval/report.json"):
             assert (folder / output).is_file(), output
-        summary = json.loads((folder / "summary.json").read_text())
-        assert summary["partial"] is False
-        assert summary["evaluation"]["report"] == str(folder / "eval")  # staging path rewritten
+        summary = read_summary(folder / "summary.json")
+        assert summary.partial is False
+        assert summary.evaluation is not None
+        assert summary.evaluation.report == str(folder / "eval")  # staging path rewritten
     assert not [p for p in out.iterdir() if ".partial-" in p.name or ".old-" in p.name]
     with open(out / "summary.csv", newline="") as handle:
         table = list(csv.DictReader(handle))

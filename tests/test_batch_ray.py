@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import pytest
 
 from lidar3d.batch import run_batch
+from lidar3d.summary import RunSummary, read_summary
 from test_batch_local import OUTPUTS, simulate_bags
 
 ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'lidar3d[ray]')")
@@ -15,8 +17,9 @@ ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'lida
 TIMING_FIELDS = {"runtime_s", "scans_per_s", "evaluation"}
 
 
-def _results_only(summary: dict) -> dict:
-    return {k: v for k, v in summary.items() if k not in TIMING_FIELDS and "_ms" not in k}
+def _results_only(summary: RunSummary) -> dict:
+    fields = dataclasses.fields(summary)
+    return {f.name: getattr(summary, f.name) for f in fields if f.name not in TIMING_FIELDS and "_ms" not in f.name}
 
 
 def test_ray_and_local_engines_write_identical_outputs(tmp_path):
@@ -31,9 +34,10 @@ def test_ray_and_local_engines_write_identical_outputs(tmp_path):
     for name in ("a__scans", "b__scans"):
         for output in OUTPUTS:
             assert (local.out_dir / name / output).read_bytes() == (remote.out_dir / name / output).read_bytes(), output
-        summaries = [json.loads((o.out_dir / name / "summary.json").read_text()) for o in (local, remote)]
-        assert summaries[0]["scans"] == 20
-        assert summaries[0]["evaluation"]["ate"] == summaries[1]["evaluation"]["ate"]
+        summaries = [read_summary(o.out_dir / name / "summary.json") for o in (local, remote)]
+        assert summaries[0].scans == 20
+        assert summaries[0].evaluation is not None and summaries[1].evaluation is not None
+        assert summaries[0].evaluation.ate == summaries[1].evaluation.ate
         assert _results_only(summaries[0]) == _results_only(summaries[1])
         jobs = [json.loads((o.out_dir / name / "batch_job.json").read_text()) for o in (local, remote)]
         assert jobs[0]["fingerprint"] == jobs[1]["fingerprint"]

@@ -7,11 +7,13 @@ import csv
 import io
 import json
 import os
+import re
 import shutil
 import sys
 from pathlib import Path
 
 import pytest
+from terminal import Terminal, screen_lines
 
 from lidar3d.batch import JobResult, JobStatus, content_fingerprint, discover_bags, job_fingerprint, run_batch
 from lidar3d.batch import span_match as span_match_module
@@ -24,6 +26,7 @@ from lidar3d.batch.report import ROW_FIELDS, bag_row, write_report
 from lidar3d.batch.span_match import TimeRangeCache, match_span_logs, resolve_extrinsics
 from lidar3d.cli.main import main
 from lidar3d.errors import BagError, ConfigError, OutputError
+from test_summary import example_summary
 
 S = 10**9
 
@@ -221,8 +224,7 @@ def test_report_files_escape_and_keep_every_field(tmp_path):
         bag_row(name="a<script>", bag=Path("/b/a.bag"), status="failed", batch_dir=tmp_path, error="bad & <worse>"),
         bag_row(
             name="b", bag=Path("/b/b.bag"), status="done", batch_dir=tmp_path,
-            summary={"scans": 20, "length_m": 5.5, "runtime_s": 2.0, "scans_per_s": 10.0, "loop_closures": 2,
-                     "evaluation": {"ate": {"translation_3d_m": {"rmse": 0.25}}}},
+            summary=example_summary(scans=20, length_m=5.5, runtime_s=2.0, scans_per_s=10.0, loop_closures=2),
             eval_report={"rpe_kitti": {"translation_percent": 1.5},
                          "rpe_distance": [{"distance_m": 10.0, "translation_m": {"rmse": 0.1}}]},
             rpe_distance_m=10.0,
@@ -247,7 +249,7 @@ def test_progress_counts_rates_and_time_left():
     progress.started("a")
     progress.scan("a", 5, 10)
     assert progress.scans_done == 5 and progress.eta_s > 0
-    progress.finished_job(JobResult("a", JobStatus.DONE, summary={"scans": 10}))
+    progress.finished_job(JobResult("a", JobStatus.DONE, summary=example_summary(scans=10)))
     progress.finished_job(JobResult("b", JobStatus.FAILED, error="x"))
     assert progress.finished == 3 and progress.scans_done == 10
     assert progress.line().startswith("batch: 3/3 bags (1 up to date, 1 failed)")
@@ -256,7 +258,33 @@ def test_progress_counts_rates_and_time_left():
     display.finished(progress.results["b"])
     display.close()
     assert "FAILED      b: x" in stream.getvalue()
+    assert "\r" not in stream.getvalue()  # off a terminal: the lines only, no bar
+    assert re.fullmatch(r"batch: 3/3 bags \(1 up to date, 1 failed\), [\d.]+ scans/s", stream.getvalue().splitlines()[-1])
     assert [format_duration(s) for s in (42, 200, 7500)] == ["42 s", "3 min 20 s", "2 h 05 min"]
+
+
+def test_progress_bar_on_a_terminal_keeps_bag_lines_apart_and_ends_with_one_status_line():
+    progress = BatchProgress({"a": 100, "b": 300})
+    terminal = Terminal()
+    display = ProgressDisplay(progress, terminal)
+    progress.started("a")
+    progress.started("b")
+    progress.scan("a", 5, 10)
+    display.update()
+    progress.scan("b", 3, 30)
+    progress.finished_job(JobResult("a", JobStatus.DONE, summary={"scans": 10}))
+    display.finished(progress.results["a"])  # the bag's line, then the bar redrawn below it
+    lines = screen_lines(terminal.getvalue())
+    assert lines[0].startswith("[1/2] done        a: 10 scans")
+    # 100 + 300 * 3/30 of 400 bytes processed: 32.5 %
+    bar = r"batch: 1/2 bags, 1 running \|[#0-9]+ *\|  32%, [\d.]+ scans/s, about .* left"
+    assert re.fullmatch(bar, lines[1]), lines
+    progress.finished_job(JobResult("b", JobStatus.FAILED, error="x"))
+    display.finished(progress.results["b"])
+    display.close()
+    lines = screen_lines(terminal.getvalue())
+    assert lines[1] == "[2/2] FAILED      b: x"
+    assert len(lines) == 3 and re.fullmatch(r"batch: 2/2 bags \(1 failed\), [\d.]+ scans/s", lines[2]), lines
 
 
 # -- options --------------------------------------------------------------------------------------------
@@ -299,7 +327,7 @@ def crash_or_succeed(job, should_stop=None, on_scan=None):
         os._exit(3)
     if on_scan is not None:
         on_scan(job.name, 1, 1)
-    return JobResult(job.name, JobStatus.DONE, summary={"scans": 1})
+    return JobResult(job.name, JobStatus.DONE, summary=example_summary(scans=1))
 
 
 class ListSink:

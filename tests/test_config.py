@@ -16,7 +16,7 @@ def test_partial_override_and_int_to_float(tmp_path):
     path.write_text("[segmentation]\ncluster_angle_deg = 45\n[sensor]\nmodel = 'hdl32e'\n")
     config = load_config(path)
     assert config.segmentation.cluster_angle_deg == 45.0
-    assert config.sensor.sensor.n_rings == 32
+    assert config.sensor.resolved_model.n_rings == 32
     assert config.features == Config().features
 
 
@@ -60,3 +60,20 @@ def test_cli_config_bad_file_one_line(tmp_path, capsys):
     assert main(["config", "--config", str(path)]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "bad.toml" in err[0] and "sensor.bogus" in err[0]
+
+
+def test_sensor_overrides_resolve_and_round_trip(tmp_path):
+    preset = Config().sensor.resolved_model
+    assert (preset.name, preset.n_rings, preset.n_columns, preset.rotation_hz, preset.max_range_m) == (
+        "vlp16", 16, 1800, 10.0, 100.0,
+    )
+    path = tmp_path / "c.toml"
+    path.write_text("[sensor]\nmax_range_override_m = 80\nn_columns_override = 900\n")
+    config = load_config(path)
+    resolved = config.sensor.resolved_model
+    assert (resolved.max_range_m, resolved.n_columns, resolved.rotation_hz) == (80.0, 900, 10.0)
+    assert resolved.elevation_deg == preset.elevation_deg
+    text = config_to_toml(config)
+    assert "# vlp16, 16 rings -15.0..15.0 deg, 900 columns, 10.0 Hz, max range 80.0 m" in text
+    path.write_text(text)
+    assert load_config(path) == config

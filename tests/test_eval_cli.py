@@ -136,7 +136,7 @@ def test_yaw_alignment_and_kitti_input(scene, capsys):
 def test_library_twin_matches_and_extrinsic_matters(scene):
     result = evaluate_span_files(scene["root"] / "estimate_tum.txt", scene["log"],
                                  extrinsics_path=scene["root"] / "extrinsic.yaml")
-    assert result.evaluation.ate.translation_3d_m.rmse < 0.022 and result.report_files == ()
+    assert result.evaluation.ate.translation_3d_m.rmse < 0.022
     without = evaluate_span_files(scene["root"] / "estimate_tum.txt", scene["log"])
     assert without.evaluation.ate.translation_3d_m.rmse > 0.1  # the 0.3 m lever arm, unaccounted
 

@@ -227,7 +227,7 @@ def test_32_beam_presets(sensor):
         result = run_front_end(sim_scan.scan, config)
         segmentation, features = result.segmentation, result.features
         image = segmentation.image
-        assert image.shape == (config.sensor.sensor.n_rings, config.sensor.sensor.n_columns)
+        assert image.shape == (config.sensor.resolved_model.n_rings, config.sensor.resolved_model.n_columns)
         visible = image.occupied.copy()
         visible[ground_row_count(config.segmentation, image.row_elevation_rad) :] = False
         truth = (cell_truth(sim_scan, image) == 0) & visible

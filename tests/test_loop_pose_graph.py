@@ -7,8 +7,8 @@ import logging
 import numpy as np
 import pytest
 
-from lidar3d.loop import PoseGraph, nearest_rigid
-from lidar3d.mapping.se3 import exp_se3, invert
+from lidar3d.loop import PoseGraph
+from lidar3d.mapping.se3 import exp_se3, invert, nearest_rigid
 from lidar3d.metrics import umeyama_se3
 
 ODO_SIGMAS = np.array([np.radians(0.05)] * 3 + [0.01] * 3)  # GTSAM order: rot (rad), trans (m)

@@ -6,14 +6,14 @@ import csv
 
 import numpy as np
 
-from lidar3d.loop import LoopCandidate, PoseGraph, Verdict
-from lidar3d.loop.report import (
+from lidar3d.export.loop_report import (
     LOOPS_CSV_COLUMNS,
     loops_csv_text,
     write_loops_csv,
     write_pose_graph_g2o,
     write_top_view,
 )
+from lidar3d.loop import LoopCandidate, PoseGraph, Verdict
 
 S = 1_000_000_000
 

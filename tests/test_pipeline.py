@@ -226,7 +226,7 @@ def test_featureless_stretch_is_logged(drive, caplog):
     with caplog.at_level(logging.WARNING, logger="lidar3d"):
         for scan in _featureless_stretch(sweeps)[8:17]:  # sweeps 8-16: the stretch is 2-6 here
             pipeline.process(scan)
-    messages = [r.getMessage() for r in caplog.records if r.name == "lidar3d.pipeline"]
+    messages = [r.getMessage() for r in caplog.records if r.name == "lidar3d.run_statistics"]
     assert messages == ["scans 2-6: too few features, pose from the motion model"]
 
 

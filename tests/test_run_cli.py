@@ -4,7 +4,7 @@ One simulated folder (3 s of the ``loop`` scenario: ROS1 bag, SPAN log, extrinsi
 per module; most tests run SLAM on a handful of its sweeps.
 """
 
-import json
+import io
 import logging
 import re
 import subprocess
@@ -12,6 +12,7 @@ import sys
 
 import numpy as np
 import pytest
+from terminal import Terminal, screen_lines
 
 from lidar3d.cli.main import main
 from lidar3d.config import Config, load_config
@@ -20,6 +21,7 @@ from lidar3d.io.bag_writer import write_scan_bag
 from lidar3d.io.pcd import read_pcd
 from lidar3d.io.trajectory_io import read_kitti, read_tum
 from lidar3d.run import run_bag
+from lidar3d.summary import read_summary
 
 sim = pytest.importorskip("lidar3d.sim")
 
@@ -35,10 +37,6 @@ OUTPUT_FILES = (
     "summary.json",
     "config.toml",
 )
-SUMMARY_KEYS = {
-    "lidar3d_version", "inputs", "topic", "partial", "scans", "keyframes", "length_m", "duration_s",
-    "runtime_s", "scans_per_s", "stage_ms_median", "map_points", "counts", "warnings", "pose_stamp",
-}
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -88,7 +86,7 @@ def window_run(simulated, tmp_path_factory):
 
 
 def _summary(out):
-    return json.loads((out / "summary.json").read_text())
+    return read_summary(out / "summary.json")
 
 
 def _no_temporary_files(out):
@@ -119,21 +117,20 @@ def test_every_output_exists_and_parses(full_run, truth):
     assert np.array_equal(kitti.stamps_ns, truth.stamps_ns)
     assert np.allclose(kitti.T_world_lidar, trajectory.T_world_lidar, atol=1e-5)
 
-    summary = _summary(out)
-    assert SUMMARY_KEYS <= set(summary)
-    assert summary["partial"] is False and summary["scans"] == N_SCANS and summary["counts"]["scans"] == N_SCANS
-    assert summary["topic"] == "/velodyne_points" and summary["keyframes"] == len(keyframes)
-    assert summary["length_m"] == pytest.approx(truth.path_length_m, rel=0.03)
-    assert summary["duration_s"] == pytest.approx((N_SCANS - 1) * 0.1)
-    assert {"read", "odometry", "mapping"} <= set(summary["stage_ms_median"])
-    assert summary["warnings"] == []
+    summary = _summary(out)  # every key present and of its type, or read_summary raises
+    assert summary.partial is False and summary.scans == N_SCANS and summary.counts.scans == N_SCANS
+    assert summary.topic == "/velodyne_points" and summary.keyframes == len(keyframes)
+    assert summary.length_m == pytest.approx(truth.path_length_m, rel=0.03)
+    assert summary.duration_s == pytest.approx((N_SCANS - 1) * 0.1)
+    assert summary.stage_ms_median.odometry > 0 and summary.stage_ms_median.mapping > 0
+    assert summary.warnings == ()
 
     assert load_config(out / "config.toml") == Config()
 
 
 def test_map_pcd_has_intensity_and_z_up(full_run):
     points, fields = read_pcd(full_run / "map.pcd")
-    assert len(points) == _summary(full_run)["map_points"] > 10_000
+    assert len(points) == _summary(full_run).map_points > 10_000
     assert set(fields) == {"intensity"} and fields["intensity"].shape == (len(points),)
     intensity = fields["intensity"]
     assert np.all(np.isfinite(intensity)) and 0.0 <= intensity.min() < intensity.max() <= 255.0
@@ -145,11 +142,11 @@ def test_map_pcd_has_intensity_and_z_up(full_run):
 
 
 def test_span_evaluation_writes_a_report_and_an_ate(full_run):
-    evaluation = _summary(full_run)["evaluation"]
+    evaluation = _summary(full_run).evaluation
     assert (full_run / "eval" / "report.json").is_file()
-    assert evaluation["report"] == str(full_run / "eval")
-    ate = evaluation["ate"]["translation_3d_m"]
-    assert ate["n"] >= 20 and ate["rmse"] < 0.05
+    assert evaluation is not None and evaluation.report == str(full_run / "eval")
+    ate = evaluation.ate.translation_3d_m
+    assert ate.n >= 20 and ate.rmse < 0.05
 
 
 # -- options -----------------------------------------------------------------------------------
@@ -159,7 +156,7 @@ def test_start_and_max_scans_select_the_window(window_run, truth):
     trajectory = read_tum(window_run / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, truth.stamps_ns[WINDOW.start : WINDOW.stop])
     summary = _summary(window_run)
-    assert summary["scans"] == len(WINDOW) and summary["partial"] is False
+    assert summary.scans == len(WINDOW) and summary.partial is False
     # The world is the first processed pose; the motion matches the truth over the window.
     true_motion = np.linalg.inv(truth.T_world_lidar[WINDOW.start]) @ truth.T_world_lidar[WINDOW.stop - 1]
     assert np.allclose(trajectory.T_world_lidar[-1][:3, 3], true_motion[:3, 3], atol=0.05)
@@ -189,7 +186,7 @@ def test_ros2_bags_give_the_same_result(storage, sweeps, window_run, tmp_path):
     trajectory = read_tum(out / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, reference.stamps_ns)
     assert np.allclose(trajectory.T_world_lidar, reference.T_world_lidar, atol=1e-6)
-    assert _summary(out)["map_points"] == _summary(window_run)["map_points"]
+    assert _summary(out).map_points == _summary(window_run).map_points
 
 
 def test_python_m_runs_the_cli():
@@ -198,6 +195,43 @@ def test_python_m_runs_the_cli():
     )
     assert done.returncode == 0, done.stderr
     assert "--max-scans" in done.stdout and "lidar3d run drive.bag --out" in done.stdout
+
+
+# -- progress ----------------------------------------------------------------------------------
+
+BAR = re.compile(r"run: +\d+%\|")
+
+
+def test_log_lines_never_share_a_line_with_the_bar(simulated, tmp_path, monkeypatch):
+    """Records logged while the bar is up (mid-run, and after the last scan as the evaluation's are)
+    go on lines of their own above it, and the final bar is left on screen once (issue 22)."""
+    from lidar3d.cli.progress import ScanProgress
+
+    update = ScanProgress.update
+
+    def logging_update(self, done, total):
+        update(self, done, total)
+        if done in (3, total):
+            logging.getLogger("lidar3d.run").info("record after scan %d", done)
+
+    monkeypatch.setattr(ScanProgress, "update", logging_update)
+    terminal = Terminal()
+    monkeypatch.setattr(sys, "stderr", terminal)
+    assert main(["run", str(simulated.bag), "--out", str(tmp_path / "out"), "--max-scans", "6"]) == 0
+    lines = screen_lines(terminal.getvalue())
+    records = [line for line in lines if "INFO:" in line]
+    assert records == ["INFO: record after scan 3", "INFO: record after scan 6"]
+    bars = [line for line in lines if BAR.search(line)]
+    assert len(bars) == 1 and lines[-1] == bars[0], lines
+    assert re.match(r"run: 100%\|#+\| 6/6 \[\d\d:\d\d<00:00, +\d+\.\d\d scans/s\]$", bars[0]), bars[0]
+
+
+@pytest.mark.parametrize("quiet, stream", [(True, Terminal), (False, io.StringIO)], ids=["-q", "pipe"])
+def test_no_bar_with_quiet_or_off_a_terminal(quiet, stream, simulated, tmp_path, monkeypatch):
+    monkeypatch.setattr(sys, "stderr", stream())
+    argv = ["-q"] * quiet + ["run", str(simulated.bag), "--out", str(tmp_path / "out"), "--max-scans", "3"]
+    assert main(argv) == 0
+    assert "\r" not in sys.stderr.getvalue() and "scans/s" not in sys.stderr.getvalue()
 
 
 # -- errors ------------------------------------------------------------------------------------
@@ -254,26 +288,26 @@ def _assert_partial_outputs(out, n_scans, truth):
         assert (out / name).is_file(), name
     assert _no_temporary_files(out)
     summary = _summary(out)
-    assert summary["partial"] is True and summary["scans"] == n_scans
+    assert summary.partial is True and summary.scans == n_scans
     trajectory = read_tum(out / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, truth.stamps_ns[:n_scans])
     assert len(read_kitti(out / "trajectory_kitti.txt")) == n_scans
     assert len(read_tum(out / "odometry_tum.txt")) == n_scans
     points, fields = read_pcd(out / "map.pcd")
-    assert len(points) == summary["map_points"] > 1000 and len(fields["intensity"]) == len(points)
+    assert len(points) == summary.map_points > 1000 and len(fields["intensity"]) == len(points)
 
 
 def test_keyboard_interrupt_in_the_cli_keeps_partial_outputs(simulated, truth, tmp_path, monkeypatch, capsys):
-    from lidar3d.cli.progress import Progress
+    from lidar3d.cli.progress import ScanProgress
 
-    update = Progress.update
+    update = ScanProgress.update
 
-    def interrupted(self, done):
-        update(self, done)
+    def interrupted(self, done, total):
+        update(self, done, total)
         if done == 5:
             raise KeyboardInterrupt
 
-    monkeypatch.setattr(Progress, "update", interrupted)
+    monkeypatch.setattr(ScanProgress, "update", interrupted)
     out = tmp_path / "out"
     code = _run(simulated.bag, "--out", out, "--max-scans", 12)
     captured = capsys.readouterr()
@@ -298,11 +332,12 @@ def test_keyboard_interrupt_in_run_bag_keeps_partial_outputs(simulated, truth, t
 
 
 def test_crash_in_the_pipeline_keeps_partial_outputs_and_reraises(simulated, truth, tmp_path, monkeypatch):
+    import lidar3d.mapping.tracker as tracker_module
     import lidar3d.pipeline as pipeline_module
 
     processed = []
     process = pipeline_module.SlamPipeline.process
-    register = pipeline_module.register_to_submap
+    register = tracker_module.register_to_submap
 
     def counting_process(self, scan):
         processed.append(scan.scan.stamp_ns if hasattr(scan, "scan") else scan.stamp_ns)
@@ -314,7 +349,7 @@ def test_crash_in_the_pipeline_keeps_partial_outputs_and_reraises(simulated, tru
         return register(*args, **kwargs)
 
     monkeypatch.setattr(pipeline_module.SlamPipeline, "process", counting_process)
-    monkeypatch.setattr(pipeline_module, "register_to_submap", failing_register)
+    monkeypatch.setattr(tracker_module, "register_to_submap", failing_register)
     out = tmp_path / "out"
     with pytest.raises(RuntimeError, match="injected failure"):  # a bug keeps its traceback
         _run(simulated.bag, "--out", out, "--max-scans", 12)
@@ -329,13 +364,13 @@ def test_checkpoints_publish_the_run_so_far(simulated, truth, tmp_path):
         if done >= 2:  # the checkpoint after scan done - 1 is on disk
             summary = _summary(out)
             trajectory = read_tum(out / "trajectory_tum.txt")
-            seen.append((summary["partial"], summary["scans"], len(trajectory), (out / "map.pcd").is_file()))
+            seen.append((summary.partial, summary.scans, len(trajectory), (out / "map.pcd").is_file()))
 
     outcome = run_bag(
         simulated.bag, out, max_scans=5, on_scan=on_scan, checkpoint_every_s=0.0, map_checkpoint_every_s=0.0
     )
     assert seen == [(True, n, n, True) for n in range(1, 5)]
-    assert outcome.summary["partial"] is False and _summary(out)["scans"] == 5
+    assert outcome.summary.partial is False and _summary(out).scans == 5
     assert np.array_equal(read_tum(out / "trajectory_tum.txt").stamps_ns, truth.stamps_ns[:5])
 
 
@@ -353,10 +388,10 @@ def test_featureless_sweeps_and_duplicates_reach_the_summary(sweeps, tmp_path, c
     assert _run(bag, "--out", out) == 0
     printed = capsys.readouterr().out
     summary = _summary(out)
-    assert summary["scans"] == 8 and summary["partial"] is False
-    assert summary["counts"]["dropped_duplicate_stamps"] == 1
-    assert summary["counts"]["motion_model_scans"] == 2
-    assert summary["warnings"] == ["scans 2-3: too few features, pose from the motion model"]
+    assert summary.scans == 8 and summary.partial is False
+    assert summary.counts.dropped_duplicate_stamps == 1
+    assert summary.counts.motion_model_scans == 2
+    assert summary.warnings == ("scans 2-3: too few features, pose from the motion model",)
     assert "warning: scans 2-3: too few features" in printed
     trajectory = read_tum(out / "trajectory_tum.txt")
     assert np.array_equal(trajectory.stamps_ns, [s.stamp_ns for s in sweeps[10:18]])

@@ -9,7 +9,14 @@ from scipy.spatial.transform import Rotation
 from lidar3d.errors import OutputError
 from lidar3d.io.atomic import atomic_path, write_text_atomic
 from lidar3d.io.pcd import read_pcd, write_pcd
-from lidar3d.io.trajectory_io import TrajectoryFileError, read_kitti, read_tum, write_kitti, write_tum
+from lidar3d.io.trajectory_io import (
+    TrajectoryFileError,
+    read_kitti,
+    read_trajectory,
+    read_tum,
+    write_kitti,
+    write_tum,
+)
 from lidar3d.records import Trajectory
 
 
@@ -65,6 +72,24 @@ def test_trajectory_file_errors_name_file_and_line(tmp_path):
     path.write_text(" ".join(["0"] * 11) + "\n")
     with pytest.raises(TrajectoryFileError, match=r"bad\.txt:1: expected 12 KITTI columns, got 11"):
         read_kitti(path)
+
+
+def test_read_trajectory_tells_tum_from_kitti_by_columns(tmp_path):
+    trajectory = random_trajectory()
+    write_tum(tmp_path / "t.txt", trajectory)
+    write_kitti(tmp_path / "k.txt", trajectory)
+    for name, reader in (("t.txt", read_tum), ("k.txt", read_kitti)):
+        back, expected = read_trajectory(tmp_path / name), reader(tmp_path / name)
+        np.testing.assert_array_equal(back.stamps_ns, expected.stamps_ns)
+        np.testing.assert_array_equal(back.T_world_lidar, expected.T_world_lidar)
+    rows = (tmp_path / "k.txt").read_text().splitlines()
+    rows[4] = rows[4].replace(rows[4].split()[3], "nan?", 1)
+    (tmp_path / "k.txt").write_text("\n".join(rows) + "\n")
+    with pytest.raises(TrajectoryFileError, match=r"k\.txt:5: not a number \('nan\?'\)"):
+        read_trajectory(tmp_path / "k.txt")
+    (tmp_path / "e.txt").write_text("# only a comment\n")
+    with pytest.raises(TrajectoryFileError, match=r"e\.txt: trajectory file has no poses"):
+        read_trajectory(tmp_path / "e.txt")
 
 
 def test_empty_trajectory_round_trips(tmp_path):

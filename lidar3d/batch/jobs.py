@@ -20,6 +20,7 @@ their BLAS/OpenMP threads before NumPy loads.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 import os
@@ -33,6 +34,9 @@ from dataclasses import dataclass
 from enum import Enum
 from pathlib import Path
 from typing import Any
+
+from lidar3d.errors import SummaryError
+from lidar3d.summary import RunSummary, read_summary
 
 __all__ = [
     "BagJob",
@@ -111,7 +115,7 @@ class JobResult:
 
     name: str
     status: JobStatus
-    summary: dict | None = None
+    summary: RunSummary | None = None
     error: str | None = None
     detail: str | None = None
     note: str | None = None
@@ -189,13 +193,13 @@ def _worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
-def _finished_summary(staging: Path) -> dict | None:
-    """The staging summary when SLAM itself completed (``"partial": false``), else None."""
+def _finished_summary(staging: Path) -> RunSummary | None:
+    """The staging summary when SLAM itself completed (not partial), else None."""
     try:
-        summary = json.loads((staging / "summary.json").read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        summary = read_summary(staging / "summary.json")
+    except SummaryError:
         return None
-    return summary if isinstance(summary, dict) and summary.get("partial") is False else None
+    return None if summary.partial else summary
 
 
 def process_job(
@@ -256,8 +260,8 @@ def process_job(
             if summary is None:
                 raise
             note = f"evaluation against {job.span_log} failed: {err}"
-            summary["evaluation_error"] = str(err)
-            write_text_atomic(staging / "summary.json", json.dumps(summary, indent=2) + "\n")
+            summary = dataclasses.replace(summary, evaluation_error=str(err))
+            write_text_atomic(staging / "summary.json", summary.to_json())
         _relocate_json(staging, job.out_dir)
         record = {
             "fingerprint": job.fingerprint,
@@ -274,8 +278,7 @@ def process_job(
         write_text_atomic(staging / JOB_FILE, json.dumps(record, indent=2) + "\n")
         job.out_dir.parent.mkdir(parents=True, exist_ok=True)
         publish_folder(staging, job.out_dir)
-        summary = json.loads((job.out_dir / "summary.json").read_text(encoding="utf-8"))
-        return result(JobStatus.DONE, summary=summary, note=note)
+        return result(JobStatus.DONE, summary=read_summary(job.out_dir / "summary.json"), note=note)
     except (JobStopped, KeyboardInterrupt) as err:
         return result(JobStatus.INTERRUPTED, error=str(err) or "interrupted")
     except Lidar3dError as err:

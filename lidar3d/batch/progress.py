@@ -1,5 +1,5 @@
 """Progress across the bags of a batch: bookkeeping (:class:`BatchProgress`) and a stderr display
-(:class:`ProgressDisplay`, used by the CLI).
+(:class:`ProgressDisplay`, used by the CLI, drawn by tqdm).
 
 Overall speed is scans per second of wall time over the bags processed in this run (bags reused
 from an earlier run do not count). The time left is estimated from bytes: the share of the bags'
@@ -14,6 +14,8 @@ import sys
 import time
 from collections.abc import Mapping
 from typing import TextIO
+
+from tqdm import tqdm
 
 from lidar3d.batch.jobs import JobResult, JobStatus
 
@@ -69,8 +71,8 @@ class BatchProgress:
     def finished_job(self, result: JobResult) -> None:
         self.running.pop(result.name, None)
         self.results[result.name] = result
-        if result.summary:
-            self.scans_finished += int(result.summary.get("scans", 0))
+        if result.summary is not None:
+            self.scans_finished += result.summary.scans
 
     @property
     def elapsed_s(self) -> float:
@@ -86,8 +88,15 @@ class BatchProgress:
         elapsed = self.elapsed_s
         return self.scans_done / elapsed if elapsed > 0 else 0.0
 
-    def _bytes_done(self) -> float:
-        done = sum(self.sizes.get(name, 0) for name in self.results)
+    @property
+    def bytes_total(self) -> int:
+        """Bytes of all bags to process in this run."""
+        return sum(self.sizes.values())
+
+    @property
+    def bytes_done(self) -> float:
+        """Bytes processed so far: finished bags whole, running bags by their share of scans done."""
+        done: float = sum(self.sizes.get(name, 0) for name in self.results)
         for name, (scans, total) in self.running.items():
             if total:
                 done += self.sizes.get(name, 0) * min(scans / total, 1.0)
@@ -96,8 +105,8 @@ class BatchProgress:
     @property
     def eta_s(self) -> float | None:
         """Estimated seconds left, or None before anything could be measured."""
-        done = self._bytes_done()
-        total = sum(self.sizes.values())
+        done = self.bytes_done
+        total = self.bytes_total
         elapsed = self.elapsed_s
         if done <= 0 or elapsed <= 0:
             return None
@@ -105,6 +114,10 @@ class BatchProgress:
 
     def line(self) -> str:
         """One status line: bags finished, running, scans/s, time left."""
+        return f"{self.bags_text()}, {self.speed_text()}"
+
+    def bags_text(self) -> str:
+        """Bags finished of all, up to date, failed and running: ``"batch: 3/5 bags (1 failed), 2 running"``."""
         text = f"batch: {self.finished}/{self.total} bags"
         parts = []
         if self.up_to_date:
@@ -116,7 +129,11 @@ class BatchProgress:
             text += f" ({', '.join(parts)})"
         if self.running:
             text += f", {len(self.running)} running"
-        text += f", {self.scans_per_s:.1f} scans/s"
+        return text
+
+    def speed_text(self) -> str:
+        """Overall speed and, until every bag is finished, time left: ``"4.1 scans/s, about 3 min 20 s left"``."""
+        text = f"{self.scans_per_s:.1f} scans/s"
         eta = self.eta_s
         if eta is not None and self.finished < self.total:
             text += f", about {format_duration(eta)} left"
@@ -124,61 +141,63 @@ class BatchProgress:
 
 
 def _describe(result: JobResult) -> str:
-    s = result.summary or {}
+    s = result.summary
     if result.status is JobStatus.DONE:
-        text = (
-            f"{s.get('scans', 0)} scans, {s.get('length_m', 0.0):.1f} m, {result.wall_s:.1f} s "
-            f"({s.get('scans_per_s', 0.0):.1f} scans/s)"
-        )
+        scans, length_m, scans_per_s = (s.scans, s.length_m, s.scans_per_s) if s is not None else (0, 0.0, 0.0)
+        text = f"{scans} scans, {length_m:.1f} m, {result.wall_s:.1f} s ({scans_per_s:.1f} scans/s)"
         return text + (f"; {result.note}" if result.note else "")
     return result.error or ""
 
 
 class ProgressDisplay:
-    """Prints one line per finished bag and a status line to ``stream`` (stderr by default).
+    """Shows a batch on ``stream`` (stderr by default): one line per finished bag, a status bar while
+    it runs, and the status line once at the end.
 
-    On a terminal the status line is redrawn in place (at most every 0.2 s); on a pipe or file it
-    is printed every ``log_every_s`` seconds.
+    The bar (bags finished and running, share of bytes processed, scans/s, time left) is drawn by
+    tqdm and only on a terminal, at most every 0.2 s; on a pipe or file only the lines are written.
+    Lines are written through ``tqdm.write``, so they never land on the bar's line.
     """
 
-    def __init__(self, progress: BatchProgress, stream: TextIO | None = None, log_every_s: float = 10.0) -> None:
+    _BAR_FORMAT = "{desc} |{bar}| {percentage:3.0f}%{postfix}"
+
+    def __init__(self, progress: BatchProgress, stream: TextIO | None = None) -> None:
         self.progress = progress
-        self.stream = stream or sys.stderr
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.log_every_s = log_every_s
-        self._last_draw = 0.0
-        self._drawn = False
+        self.stream = stream if stream is not None else sys.stderr
+        self._bar = tqdm(
+            desc=progress.bags_text(),
+            total=progress.bytes_total,
+            postfix=progress.speed_text(),
+            file=self.stream,
+            disable=None,
+            mininterval=0.2,
+            miniters=0,
+            dynamic_ncols=True,
+            bar_format=self._BAR_FORMAT,
+        )
 
-    def _clear(self) -> None:
-        if self.tty and self._drawn:
-            self.stream.write("\r" + " " * 100 + "\r")
-            self._drawn = False
-
-    def _draw(self, force: bool = False) -> None:
-        now = time.perf_counter()
-        if not force and now - self._last_draw < (0.2 if self.tty else self.log_every_s):
-            return
-        self._last_draw = now
-        if self.tty:
-            self.stream.write("\r" + self.progress.line()[:100].ljust(100))
-            self._drawn = True
-        else:
-            self.stream.write(self.progress.line() + "\n")
-        self.stream.flush()
+    def _sync(self) -> None:
+        """Copy the bookkeeping into the bar without drawing it."""
+        self._bar.desc = self.progress.bags_text()
+        self._bar.set_postfix_str(self.progress.speed_text(), refresh=False)
+        self._bar.n = self.progress.bytes_done
 
     def update(self) -> None:
-        """Redraw the status line if it is time to."""
-        self._draw()
+        """Redraw the status bar if it is time to."""
+        self._sync()
+        self._bar.update(0)
 
     def finished(self, result: JobResult) -> None:
-        """Print the line of a finished bag, then the status line."""
-        self._clear()
+        """Print the line of a finished bag above the status bar, which is redrawn below it."""
         p = self.progress
         label = result.status.value if result.status is not JobStatus.FAILED else "FAILED"
-        self.stream.write(f"[{p.finished}/{p.total}] {label:<11} {result.name}: {_describe(result)}\n")
-        self._draw(force=self.tty)
+        self._sync()
+        tqdm.write(f"[{p.finished}/{p.total}] {label:<11} {result.name}: {_describe(result)}", file=self.stream)
+        self.stream.flush()
 
     def close(self) -> None:
-        self._clear()
-        self.stream.write(self.progress.line() + "\n")
-        self.stream.flush()
+        """Erase the bar and, if any bag was processed, print the final status line (once)."""
+        self._bar.leave = False
+        self._bar.close()
+        if self.progress.results:
+            self.stream.write(self.progress.line() + "\n")
+            self.stream.flush()

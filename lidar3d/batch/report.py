@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from lidar3d.io.atomic import write_text_atomic
+from lidar3d.summary import RunSummary
 
 __all__ = ["ROW_FIELDS", "ReportPaths", "bag_row", "write_report"]
 
@@ -85,16 +86,6 @@ def _rmse(stats: Any) -> float | None:
     return _number(stats.get("rmse")) if isinstance(stats, Mapping) else None
 
 
-def _loop_closures(summary: Mapping[str, Any]) -> int | None:
-    for source in (summary, summary.get("counts") or {}):
-        value = source.get("loop_closures") if isinstance(source, Mapping) else None
-        if isinstance(value, (int, float)) and not isinstance(value, bool):
-            return int(value)
-        if isinstance(value, list):
-            return len(value)
-    return None
-
-
 def _rpe(eval_report: Mapping[str, Any] | None, distance_m: float | None) -> tuple[float | None, float | None]:
     if not eval_report:
         return None, None
@@ -114,7 +105,7 @@ def bag_row(
     bag: Path,
     status: str,
     batch_dir: Path,
-    summary: Mapping[str, Any] | None = None,
+    summary: RunSummary | None = None,
     eval_report: Mapping[str, Any] | None = None,
     span_log: Path | None = None,
     span_match: str = "",
@@ -123,38 +114,36 @@ def bag_row(
     fingerprint: str = "",
     rpe_distance_m: float | None = None,
 ) -> dict[str, Any]:
-    """One report row. Metrics come from the bag's ``summary.json`` and ``eval/report.json``;
+    """One report row. Metrics come from the bag's run summary and ``eval/report.json``;
     plots are the PNG files of the bag's folder and of its ``eval/`` folder."""
-    s = summary or {}
+    s = summary
     folder = batch_dir / name
-    has_outputs = summary is not None
-    pngs = [*sorted(folder.glob("*.png")), *sorted((folder / "eval").glob("*.png"))] if has_outputs else []
+    pngs = [*sorted(folder.glob("*.png")), *sorted((folder / "eval").glob("*.png"))] if s is not None else []
     plots = [p.relative_to(batch_dir).as_posix() for p in pngs]  # loop top view, then evaluation plots
-    evaluation = s.get("evaluation") if isinstance(s.get("evaluation"), Mapping) else {}
-    ate = evaluation.get("ate") if isinstance(evaluation, Mapping) else None
+    ate = s.evaluation.ate if s is not None and s.evaluation is not None else None
     rpe_m, rpe_pct = _rpe(eval_report, rpe_distance_m)
     return {
         "name": name,
         "status": status,
-        "scans": s.get("scans"),
-        "keyframes": s.get("keyframes"),
-        "length_m": _number(s.get("length_m")),
-        "duration_s": _number(s.get("duration_s")),
-        "runtime_s": _number(s.get("runtime_s")),
-        "scans_per_s": _number(s.get("scans_per_s")),
-        "loop_closures": _loop_closures(s) if has_outputs else None,
-        "ate_rmse_m": _rmse(ate.get("translation_3d_m")) if isinstance(ate, Mapping) else None,
+        "scans": s.scans if s is not None else None,
+        "keyframes": s.keyframes if s is not None else None,
+        "length_m": _number(s.length_m) if s is not None else None,
+        "duration_s": _number(s.duration_s) if s is not None else None,
+        "runtime_s": _number(s.runtime_s) if s is not None else None,
+        "scans_per_s": _number(s.scans_per_s) if s is not None else None,
+        "loop_closures": s.loop_closures if s is not None else None,
+        "ate_rmse_m": _number(ate.translation_3d_m.rmse) if ate is not None else None,
         "rpe_rmse_m": rpe_m,
         "rpe_kitti_percent": rpe_pct,
-        "map_points": s.get("map_points"),
-        "warnings": len(s.get("warnings") or []) if has_outputs else None,
+        "map_points": s.map_points if s is not None else None,
+        "warnings": len(s.warnings) if s is not None else None,
         "span_log": str(span_log) if span_log else None,
         "span_match": span_match,
         "bag": str(bag),
-        "output": f"{name}/" if has_outputs else None,
+        "output": f"{name}/" if s is not None else None,
         "plots": plots,
         "error": error,
-        "note": note or s.get("evaluation_error"),
+        "note": note or (s.evaluation_error if s is not None else None),
         "fingerprint": fingerprint,
     }
 

@@ -38,7 +38,8 @@ from lidar3d.batch.jobs import BagJob, JobResult, JobStatus, read_job_record, st
 from lidar3d.batch.progress import BatchProgress
 from lidar3d.batch.report import ReportPaths, bag_row, write_report
 from lidar3d.batch.span_match import SpanMatch, TimeRangeCache, match_span_logs, resolve_extrinsics
-from lidar3d.errors import ConfigError, OutputError
+from lidar3d.errors import ConfigError, OutputError, SummaryError
+from lidar3d.summary import RunSummary, read_summary
 
 __all__ = ["BatchOutcome", "ProgressCallback", "default_workers", "run_batch"]
 
@@ -138,12 +139,20 @@ def _read_json(path: Path) -> dict | None:
     return data if isinstance(data, dict) else None
 
 
+def _published_summary(folder: Path) -> RunSummary | None:
+    """The run summary of a bag's output folder (None when absent or not a valid summary)."""
+    try:
+        return read_summary(folder / "summary.json")
+    except SummaryError:
+        return None
+
+
 def _up_to_date(job: BagJob) -> bool:
     record = read_job_record(job.out_dir)
     if record is None or record.get("fingerprint") != job.fingerprint:
         return False
-    summary = _read_json(job.out_dir / "summary.json")
-    return summary is not None and summary.get("partial") is False
+    summary = _published_summary(job.out_dir)
+    return summary is not None and not summary.partial
 
 
 class _Collector:
@@ -241,7 +250,7 @@ def _rows(
         else:
             status, error, note = JobStatus.NOT_STARTED, None, None
         published = status in (JobStatus.DONE, JobStatus.UP_TO_DATE)
-        summary = _read_json(job.out_dir / "summary.json") if published else None
+        summary = _published_summary(job.out_dir) if published else None
         eval_report = _read_json(job.out_dir / "eval" / "report.json") if published else None
         rows.append(
             bag_row(

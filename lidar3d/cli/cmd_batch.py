@@ -55,17 +55,17 @@ def run(args: argparse.Namespace) -> int:
     display: list[ProgressDisplay] = []
 
     def on_progress(event: str, progress: BatchProgress, result: JobResult | None) -> None:
-        if event == "start":
-            display.append(ProgressDisplay(progress))
+        if event == "start" and not args.quiet:
             if progress.up_to_date:
                 print(f"{progress.up_to_date} of {progress.total} bags up to date, skipped", file=sys.stderr)
+            display.append(ProgressDisplay(progress))
         elif not display:
             return
         elif event == "finished" and result is not None:
             display[0].finished(result)
         elif event == "update":
             display[0].update()
-        elif event == "end" and progress.results:
+        elif event == "end":
             display[0].close()
 
     def on_sigterm(signum: int, frame: object) -> None:

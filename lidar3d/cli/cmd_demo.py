@@ -27,7 +27,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from lidar3d.cli.progress import Progress
+    from lidar3d.cli.progress import ScanProgress
     from lidar3d.run import run_bag
     from lidar3d.sim import simulate
 
@@ -35,25 +35,22 @@ def run(args: argparse.Namespace) -> int:
     sim_dir = out / "simulation"
     print(f"simulating scenario '{args.scenario}' (seed {args.seed}) into {sim_dir}/ ...")
     outputs = simulate(args.scenario, sim_dir, seed=args.seed, duration_s=args.duration, overwrite=True)
-    progress = Progress(None, "slam")
-
-    def on_scan(done: int, total: int | None) -> None:
-        progress.total = total
-        progress.update(done)
-
     slam_dir = out / "slam"
-    outcome = run_bag(
-        outputs.bag,
-        slam_dir,
-        span_log=outputs.span_log,
-        extrinsics=outputs.extrinsics,
-        on_scan=on_scan,
-    )
-    progress.close()
+    progress = ScanProgress("slam", quiet=args.quiet)
+    try:
+        outcome = run_bag(
+            outputs.bag,
+            slam_dir,
+            span_log=outputs.span_log,
+            extrinsics=outputs.extrinsics,
+            on_scan=progress.update,
+        )
+    finally:
+        progress.close()
     s = outcome.summary
-    print(f"{s['scans']} scans, {s['length_m']:.1f} m in {s['runtime_s']:.1f} s ({s['scans_per_s']:.1f} scans/s)")
-    if "evaluation" in s:
-        print(s["evaluation"]["table"])
+    print(f"{s.scans} scans, {s.length_m:.1f} m in {s.runtime_s:.1f} s ({s.scans_per_s:.1f} scans/s)")
+    if s.evaluation is not None:
+        print(s.evaluation.table)
     print("outputs:")
     print(f"  map:          {slam_dir / 'map.pcd'}")
     print(f"  trajectory:   {slam_dir / 'trajectory_tum.txt'} (and trajectory_kitti.txt)")

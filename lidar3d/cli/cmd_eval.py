@@ -1,6 +1,7 @@
 """``lidar3d eval``: score a lidar trajectory against NovAtel SPAN ground truth.
 
-Library twin: :func:`lidar3d.metrics.span_eval.evaluate_span_files`.
+Library twin: :func:`lidar3d.metrics.span_eval.evaluate_span_files`, then
+:func:`lidar3d.export.span_report.write_span_report` for the report files.
 """
 
 from __future__ import annotations
@@ -52,8 +53,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from lidar3d.config import load_config
     from lidar3d.errors import GnssError
+    from lidar3d.export.span_report import format_span_table, write_span_report
     from lidar3d.gnss.enu import GeodeticOrigin
-    from lidar3d.metrics.report import format_table
     from lidar3d.metrics.span_eval import evaluate_span_files
 
     config = load_config(args.config).gnss
@@ -66,13 +67,13 @@ def run(args: argparse.Namespace) -> int:
     result = evaluate_span_files(
         args.trajectory,
         args.span,
-        args.out,
         extrinsics_path=args.extrinsics,
         align=args.align,
         time_offset_s=args.time_offset,
         origin=origin,
         config=config,
     )
-    print(format_table(result))
+    write_span_report(result, args.out)
+    print(format_span_table(result))
     print(f"report: {args.out}")
     return 0

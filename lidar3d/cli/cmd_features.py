@@ -12,17 +12,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-log = logging.getLogger(__name__)
+from lidar3d.export.front_end import FRONT_END_FILES, write_front_end_scan
 
-OUTPUT_FILES = (
-    "ground.pcd",
-    "clusters.pcd",
-    "outliers.pcd",
-    "edge_sharp.pcd",
-    "edge_less_sharp.pcd",
-    "planar_flat.pcd",
-    "planar_less_flat.pcd",
-)
+log = logging.getLogger(__name__)
 
 
 def _scan_range(text: str) -> tuple[int, int | None]:
@@ -47,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=textwrap.fill(
             "Run the front end (range image, ground, clusters, edge/planar features) on the scans of a "
             "bag and write, per scan, a folder scan_NNNNNN/ (N = index of the scan in the bag) holding "
-            + ", ".join(OUTPUT_FILES)
+            + ", ".join(FRONT_END_FILES)
             + ", all in the lidar frame, and the configuration in force as config.toml. Prints the "
             "median time per sub-stage in ms per scan.",
             width=88,
@@ -79,55 +71,6 @@ class FeaturesExportSummary:
     scan_indices: tuple[int, ...]
     median_stage_ms: dict[str, float]
     median_total_ms: float
-
-
-def _write_scan_folder(folder: Path, result) -> None:
-    """Write the seven clouds of one scan into ``folder`` (built beside it, then renamed)."""
-    import os
-    import shutil
-    import tempfile
-
-    import numpy as np
-
-    from lidar3d.errors import OutputError
-    from lidar3d.io.pcd import write_pcd
-
-    segmentation, features = result.segmentation, result.features
-    image = segmentation.image
-    points = segmentation.scan.points
-    ground_cells = image.point_index[segmentation.ground_mask]
-    cluster_cells = segmentation.cluster_label >= 0
-    outlier_cells = image.point_index[segmentation.outlier_mask]
-    try:
-        staging = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".partial", dir=folder.parent))
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(staging, 0o777 & ~umask)  # mkdtemp makes it private; the result is an ordinary folder
-    except OSError as err:
-        raise OutputError(f"{folder}: cannot create a folder beside it: {err.strerror}") from err
-    try:
-        write_pcd(staging / "ground.pcd", points[ground_cells])
-        write_pcd(
-            staging / "clusters.pcd",
-            points[image.point_index[cluster_cells]],
-            label=segmentation.cluster_label[cluster_cells].astype(np.int32),
-        )
-        write_pcd(staging / "outliers.pcd", points[outlier_cells])
-        for name, cloud in (
-            ("edge_sharp.pcd", features.sharp),
-            ("edge_less_sharp.pcd", features.less_sharp),
-            ("planar_flat.pcd", features.flat),
-            ("planar_less_flat.pcd", features.less_flat),
-        ):
-            write_pcd(staging / name, cloud.points, ring=cloud.ring.astype(np.int32))
-        if folder.exists():
-            shutil.rmtree(folder)
-        os.replace(staging, folder)
-    except OSError as err:
-        raise OutputError(f"{folder}: cannot write: {err}") from err
-    finally:
-        if staging.exists():
-            shutil.rmtree(staging, ignore_errors=True)
 
 
 def export_front_end(
@@ -165,7 +108,7 @@ def export_front_end(
         # Decoded as `lidar3d run` decodes them (same rings and times); scans before `start` are skipped cheaply.
         for index, scan in source.scans(start, stop):
             result = run_front_end(scan, config)
-            _write_scan_folder(out_dir / f"scan_{index:06d}", result)
+            write_front_end_scan(out_dir / f"scan_{index:06d}", result)
             written.append(index)
             timings.append(result.stage_ms)
             log.debug("scan %d: %.1f ms, %d sharp, %d flat", index, result.total_ms,

@@ -35,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     topic = args.topic or config.input.topic or None
     for index, bag in enumerate(args.bags):
-        info = bag_info(bag, topic=topic, sensor=config.sensor.sensor, min_range_m=config.sensor.min_range_m)
+        info = bag_info(bag, topic=topic, sensor=config.sensor.resolved_model, min_range_m=config.sensor.min_range_m)
         report = format_bag_info(info)
         print(("\n" if index else "") + report, flush=True)
     return 0

@@ -37,7 +37,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     import dataclasses
 
-    from lidar3d.cli.progress import Progress
+    from lidar3d.cli.progress import ScanProgress
     from lidar3d.config import load_config
     from lidar3d.errors import ConfigError
     from lidar3d.run import run_bag
@@ -57,12 +57,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--max-scans must be 1 or more, got {args.max_scans}")
     if args.extrinsics and not args.span:
         raise ConfigError("--extrinsics needs --span")
-    progress = Progress(None, "run")
-
-    def on_scan(done: int, total: int | None) -> None:
-        progress.total = total
-        progress.update(done)
-
+    progress = ScanProgress("run", quiet=args.quiet)
     try:
         outcome = run_bag(
             args.bags,
@@ -72,19 +67,18 @@ def run(args: argparse.Namespace) -> int:
             max_scans=args.max_scans,
             span_log=args.span,
             extrinsics=args.extrinsics,
-            on_scan=on_scan,
+            on_scan=progress.update,
         )
     finally:
-        if progress.done:
-            progress.close()
+        progress.close()
     s = outcome.summary
     print(
-        f"{s['scans']} scans, {s['length_m']:.1f} m, {s['runtime_s']:.1f} s ({s['scans_per_s']:.1f} scans/s), "
-        f"{s['keyframes']} keyframes, {s['loop_closures']} loop closures, {s['map_points']} map points"
+        f"{s.scans} scans, {s.length_m:.1f} m, {s.runtime_s:.1f} s ({s.scans_per_s:.1f} scans/s), "
+        f"{s.keyframes} keyframes, {s.loop_closures} loop closures, {s.map_points} map points"
     )
-    for warning in s["warnings"]:
+    for warning in s.warnings:
         print(f"warning: {warning}")
-    if "evaluation" in s:
-        print(s["evaluation"]["table"])
+    if s.evaluation is not None:
+        print(s.evaluation.table)
     print(f"outputs in {outcome.out_dir}/")
     return 0

@@ -37,8 +37,11 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _configure_logging(verbose: bool, quiet: bool) -> None:
+    """Log records of ``lidar3d.*`` to stderr, each on its own line above any progress bar."""
+    from lidar3d.cli.progress import ProgressSafeHandler
+
     level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
-    handler = logging.StreamHandler(sys.stderr)
+    handler = ProgressSafeHandler(sys.stderr)
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
     root = logging.getLogger("lidar3d")
     root.handlers[:] = [handler]

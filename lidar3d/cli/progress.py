@@ -1,52 +1,74 @@
-"""A dependency-free progress line for long runs (scans done, scans/s, time left)."""
+"""Terminal progress of the CLI, drawn by tqdm, and the logging handler that writes above it.
+
+tqdm (no dependencies of its own, under 1 MB installed) draws and throttles the bar; its ``write``
+lifts every bar off the terminal line, prints the text and redraws the bar below, so a log record
+never lands on the bar's line. The bar is drawn only when stderr is a terminal (tqdm's
+``disable=None``): on a pipe or file (CI, ``2> log``) it writes nothing, rather than a
+carriage-return redraw every 0.2 s.
+"""
 
 from __future__ import annotations
 
+import logging
 import sys
-import time
 from typing import TextIO
 
-__all__ = ["Progress"]
+from tqdm import tqdm
+
+__all__ = ["ProgressSafeHandler", "ScanProgress"]
+
+#: Redraw a bar at most this often [s].
+REDRAW_INTERVAL_S = 0.2
+_WITH_TOTAL = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}, {rate_noinv_fmt}]"
+_WITHOUT_TOTAL = "{desc}: {n_fmt} scans [{elapsed}, {rate_noinv_fmt}]"
 
 
-class Progress:
-    """Redraws one status line on a terminal; on a pipe, prints a line every ``log_every_s``."""
+class ScanProgress:
+    """The bar of one SLAM run on stderr: scans done/total, share done, time spent and left, scans/s.
 
-    def __init__(self, total: int | None, label: str, stream: TextIO | None = None, log_every_s: float = 10.0) -> None:
-        self.total = total
-        self.label = label
-        self.stream = stream or sys.stderr
-        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
-        self.log_every_s = log_every_s
-        self.start = time.perf_counter()
-        self._last_draw = 0.0
-        self.done = 0
+    The rate is the average since the bar was made (tqdm's ``smoothing=0``), the time left the
+    scans still to go at that rate.
 
-    def update(self, done: int) -> None:
-        self.done = done
-        now = time.perf_counter()
-        interval = 0.2 if self.tty else self.log_every_s
-        if now - self._last_draw >= interval:
-            self._last_draw = now
-            self._draw(now)
+    Args:
+        label: shown before the bar (``"run"``).
+        quiet: draw nothing (``-q``).
+        stream: where to draw; stderr by default. Nothing is drawn unless it is a terminal.
+    """
 
-    def _draw(self, now: float) -> None:
-        elapsed = now - self.start
-        rate = self.done / elapsed if elapsed > 0 else 0.0
-        text = f"{self.label}: {self.done}"
-        if self.total:
-            text += f"/{self.total} ({100.0 * self.done / self.total:.0f}%)"
-            if rate > 0:
-                text += f", {(self.total - self.done) / rate:.0f} s left"
-        text += f", {rate:.1f} scans/s"
-        if self.tty:
-            self.stream.write("\r" + text.ljust(78)[:120])
-        else:
-            self.stream.write(text + "\n")
-        self.stream.flush()
+    def __init__(self, label: str, *, quiet: bool = False, stream: TextIO | None = None) -> None:
+        self._bar = tqdm(
+            desc=label,
+            unit=" scans",
+            file=stream if stream is not None else sys.stderr,
+            disable=True if quiet else None,
+            mininterval=REDRAW_INTERVAL_S,
+            smoothing=0.0,
+            dynamic_ncols=True,
+            bar_format=_WITHOUT_TOTAL,
+        )
+
+    def update(self, done: int, total: int | None) -> None:
+        """Record that ``done`` scans of ``total`` (None: unknown) are processed; redraw if it is time."""
+        if total != self._bar.total:
+            self._bar.total = total
+            self._bar.bar_format = _WITH_TOTAL if total else _WITHOUT_TOTAL
+        self._bar.update(done - self._bar.n)
 
     def close(self) -> None:
-        self._draw(time.perf_counter())
-        if self.tty:
-            self.stream.write("\n")
-            self.stream.flush()
+        """Draw the final state once and leave it on its line; a bar that counted no scan is erased."""
+        self._bar.leave = self._bar.n > 0
+        self._bar.close()
+
+
+class ProgressSafeHandler(logging.StreamHandler):
+    """A stream handler that writes each record through ``tqdm.write``, so it goes on a line of its own
+    above any progress bar drawn on the same terminal, and the bar is redrawn below it."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            tqdm.write(self.format(record), file=self.stream)
+            self.flush()
+        except RecursionError:
+            raise
+        except Exception:  # noqa: BLE001 - a handler reports its own failures through handleError, as logging's do
+            self.handleError(record)

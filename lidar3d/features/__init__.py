@@ -5,7 +5,14 @@ features, per-stage ms). Features only: ``extract_features(segmentation, config.
 step: ``compute_smoothness`` -> ``select_features``.
 """
 
-from lidar3d.features.frontend import STAGES, FrontEndResult, extract_features, run_front_end
+from lidar3d.features.frontend import (
+    STAGES,
+    FrontEndResult,
+    PreparedScan,
+    extract_features,
+    prepare_scan,
+    run_front_end,
+)
 from lidar3d.features.records import FeatureCloud, FeatureSet, Smoothness
 from lidar3d.features.selection import select_features, suppression_spans, voxel_centroids_per_ring
 from lidar3d.features.smoothness import compute_smoothness
@@ -15,11 +22,13 @@ __all__ = [
     "FeatureSet",
     "Smoothness",
     "FrontEndResult",
+    "PreparedScan",
     "STAGES",
     "compute_smoothness",
     "select_features",
     "extract_features",
     "run_front_end",
+    "prepare_scan",
     "suppression_spans",
     "voxel_centroids_per_ring",
 ]

@@ -1,4 +1,9 @@
-"""The whole front end in one call, with per-stage timing: scan -> Segmentation -> FeatureSet."""
+"""The whole front end in one call, with per-stage timing: scan -> Segmentation -> FeatureSet.
+
+:func:`prepare_scan` is what the SLAM pipeline consumes: the features plus the dense ground cloud
+(a :class:`PreparedScan`); it depends on nothing but the scan and the configuration, so an adapter
+may run it ahead in another process (:mod:`lidar3d.prefetch`).
+"""
 
 from __future__ import annotations
 
@@ -6,7 +11,7 @@ import time
 from dataclasses import dataclass, field
 
 from lidar3d.config import Config, FeatureConfig
-from lidar3d.features.records import FeatureSet
+from lidar3d.features.records import FeatureCloud, FeatureSet
 from lidar3d.features.selection import select_features
 from lidar3d.features.smoothness import compute_smoothness
 from lidar3d.records import Scan
@@ -20,7 +25,7 @@ from lidar3d.segmentation import (
     usable_rows,
 )
 
-__all__ = ["FrontEndResult", "STAGES", "extract_features", "run_front_end"]
+__all__ = ["FrontEndResult", "PreparedScan", "STAGES", "extract_features", "prepare_scan", "run_front_end"]
 
 STAGES = ("projection", "ground", "clustering", "smoothness", "selection")
 """Names of the timed sub-stages, in order, as keys of :attr:`FrontEndResult.stage_ms`."""
@@ -77,3 +82,35 @@ def run_front_end(scan: Scan, config: Config) -> FrontEndResult:
     t5 = clock()
     stage_ms.update(ground=(t2 - t1) * 1e3, clustering=(t3 - t2) * 1e3, smoothness=(t4 - t3) * 1e3, selection=(t5 - t4) * 1e3)
     return FrontEndResult(segmentation=segmentation, features=features, stage_ms=stage_ms)
+
+
+@dataclass(frozen=True, slots=True)
+class PreparedScan:
+    """A scan with its front-end output: what the SLAM pipeline needs of the front end.
+
+    Attributes:
+        scan: the raw sweep (lidar frame, as fired: not deskewed).
+        features: its LeGO-LOAM feature set (lidar frame, not deskewed).
+        ground: every ground cell of its range image as a cloud (lidar frame, not deskewed).
+        stage_ms: front-end milliseconds per sub-stage of :data:`STAGES`.
+    """
+
+    scan: Scan
+    features: FeatureSet
+    ground: FeatureCloud
+    stage_ms: dict[str, float]
+
+
+def prepare_scan(scan: Scan, config: Config) -> PreparedScan:
+    """Run the front end on ``scan`` (a pure function of the scan and the configuration)."""
+    front = run_front_end(scan, config)
+    return PreparedScan(scan, front.features, _ground_cloud(front.segmentation), front.stage_ms)
+
+
+def _ground_cloud(segmentation: Segmentation) -> FeatureCloud:
+    """Every ground cell of the range image as a cloud (the segmented cloud keeps only every
+    fifth ground column; mapping wants the ground dense, since it fixes z, roll and pitch)."""
+    idx = segmentation.image.point_index[segmentation.ground_mask]
+    idx = idx[idx >= 0]
+    scan = segmentation.scan
+    return FeatureCloud(scan.points[idx], scan.ring[idx], scan.time_offset_s[idx])

@@ -286,7 +286,7 @@ class ScanSource:
 def open_scan_source(paths: str | Path | Sequence[str | Path], config: Any = None) -> ScanSource:
     """A :class:`ScanSource` configured from a :class:`lidar3d.config.Config` (defaults when None).
 
-    Uses ``config.input.topic``, ``config.sensor.sensor`` and ``config.sensor.min_range_m``.
+    Uses ``config.input.topic``, ``config.sensor.resolved_model`` and ``config.sensor.min_range_m``.
     Not yet opened: use it in a ``with`` block.
     """
     if config is None:
@@ -296,6 +296,6 @@ def open_scan_source(paths: str | Path | Sequence[str | Path], config: Any = Non
     return ScanSource(
         paths,
         topic=config.input.topic or None,
-        sensor=config.sensor.sensor,
+        sensor=config.sensor.resolved_model,
         min_range_m=config.sensor.min_range_m,
     )

@@ -3,6 +3,7 @@
 TUM: one line per pose, ``timestamp tx ty tz qx qy qz qw`` with the timestamp in seconds.
 KITTI: one line per pose, the first three rows of ``T_world_lidar`` row-major (12 numbers), no time;
 we write the stamps beside it in ``<name>.times.txt`` (seconds, one per line) as KITTI odometry does.
+:func:`read_trajectory` reads either, telling them apart by the number of columns.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from lidar3d.errors import Lidar3dError
 from lidar3d.io.atomic import write_text_atomic
 from lidar3d.records import Trajectory
 
-__all__ = ["write_tum", "read_tum", "write_kitti", "read_kitti", "TrajectoryFileError"]
+__all__ = ["TrajectoryFileError", "read_kitti", "read_trajectory", "read_tum", "write_kitti", "write_tum"]
 
 
 class TrajectoryFileError(Lidar3dError):
@@ -117,3 +118,38 @@ def read_kitti(path: str | Path) -> Trajectory:
     else:
         stamps = [i * 100_000_000 for i in range(len(rows))]
     return Trajectory(np.asarray(stamps, dtype=np.int64), poses)
+
+
+def _malformed_kitti_line(path: Path) -> str:
+    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
+        for token in line.split():
+            try:
+                float(token)
+            except ValueError:
+                return f"{path}:{lineno}: not a number ({token!r}) in {line.strip()!r}"
+    return f"{path}: malformed KITTI trajectory"
+
+
+def read_trajectory(path: str | Path) -> Trajectory:
+    """Read a TUM (8 columns) or KITTI (12 columns, stamps from ``.times.txt``) trajectory.
+
+    The format is taken from the first data row. Raises :class:`TrajectoryFileError` naming the line
+    of a malformed row.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise TrajectoryFileError(f"{path}: trajectory file not found") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise TrajectoryFileError(f"{path}: cannot read trajectory file: {err}") from err
+    first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), None)
+    if first is None:
+        raise TrajectoryFileError(f"{path}: trajectory file has no poses")
+    columns = len(first.replace(",", " ").split())
+    if columns == 12:
+        try:
+            return read_kitti(path)
+        except ValueError as err:  # a non-numeric token (TrajectoryFileError is no ValueError)
+            raise TrajectoryFileError(_malformed_kitti_line(path)) from err
+    return read_tum(path)

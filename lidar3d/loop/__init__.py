@@ -2,15 +2,13 @@
 
 Pure computation (the algorithm layer). GTSAM is imported only by :mod:`lidar3d.loop.pose_graph`,
 Open3D only by :mod:`lidar3d.loop.verification`, both lazily. File outputs (``loops.csv``,
-``pose_graph.g2o``, the top-view PNG) live in the adapter module :mod:`lidar3d.loop.report`, which
-this package does not import.
+``pose_graph.g2o``, the top-view PNG) live in the adapter module :mod:`lidar3d.export.loop_report`.
 """
 
 from lidar3d.loop.candidates import CandidateSet, find_candidates
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.pose_graph import GraphEdge, PoseGraph
 from lidar3d.loop.records import LoopCandidate, Verdict
-from lidar3d.loop.rigid import nearest_rigid
 from lidar3d.loop.verification import LoopVerification, build_match_cloud, verify_loop
 
 __all__ = [
@@ -23,7 +21,6 @@ __all__ = [
     "PoseGraph",
     "LoopCandidate",
     "Verdict",
-    "nearest_rigid",
     "LoopVerification",
     "build_match_cloud",
     "verify_loop",

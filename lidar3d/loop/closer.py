@@ -27,9 +27,8 @@ import numpy as np
 from lidar3d.loop.candidates import find_candidates
 from lidar3d.loop.pose_graph import PoseGraph
 from lidar3d.loop.records import LoopCandidate, Verdict
-from lidar3d.loop.rigid import nearest_rigid
 from lidar3d.loop.verification import build_match_cloud, verify_loop
-from lidar3d.mapping.se3 import interpolate_poses, invert
+from lidar3d.mapping.se3 import interpolate_poses, invert, nearest_rigid
 
 __all__ = ["LoopUpdate", "LoopCloser", "correct_scan_poses"]
 

@@ -13,8 +13,8 @@ Variables: one ``Pose3`` per keyframe, key ``X(k)`` = ``gtsam.symbol('x', k)``, 
 
 **Noise order and units.** GTSAM's ``Pose3`` tangent is ``(ωx, ωy, ωz, vx, vy, vz)``: rotation
 first (radians), then translation (metres), perturbation on the right (``T exp(ξ)``, body frame).
-Every sigma vector and information matrix here uses that order; :meth:`PoseGraph.g2o_text` swaps
-the blocks into g2o's translation-first order.
+Every sigma vector and information matrix here uses that order; :func:`format_g2o` swaps the blocks
+into g2o's translation-first order.
 
 **Incremental solve.** New factors and new values are collected and handed to ``ISAM2.update``
 exactly once, then cleared (DESIGN.md: iSAM2 gets only the new factors and values). After a loop,
@@ -28,14 +28,15 @@ dropped; odometry is never dropped.
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from lidar3d.loop.rigid import nearest_rigid
+from lidar3d.mapping.se3 import nearest_rigid
 
-__all__ = ["GraphEdge", "PoseGraph"]
+__all__ = ["GraphEdge", "PoseGraph", "format_g2o"]
 
 log = logging.getLogger(__name__)
 
@@ -68,11 +69,146 @@ def _symbol(k: int) -> int:
 
 
 def _check_pose(T: np.ndarray, name: str) -> np.ndarray:
-    """A finite 4x4 transform with its rotation projected onto SO(3) (see :mod:`lidar3d.loop.rigid`)."""
+    """A finite 4x4 transform with its rotation projected onto SO(3) (see
+    :func:`lidar3d.mapping.se3.nearest_rigid`)."""
     T = np.asarray(T, dtype=np.float64)
     if T.shape != (4, 4) or not np.isfinite(T).all():
         raise ValueError(f"{name} must be a finite (4,4) transform")
     return nearest_rigid(T)
+
+
+def _check_sigmas(sigmas: np.ndarray) -> np.ndarray:
+    """(6,) positive odometry sigmas, GTSAM order (rad x3, m x3), as float64."""
+    sigmas = np.asarray(sigmas, dtype=np.float64)
+    if sigmas.shape != (6,) or not (sigmas > 0).all():
+        raise ValueError("sigmas must be six positive numbers (rot rad x3, trans m x3)")
+    return sigmas
+
+
+def _check_information(information: np.ndarray) -> np.ndarray:
+    """A finite (6,6) information matrix, symmetrised, that must be positive definite."""
+    information = np.asarray(information, dtype=np.float64)
+    if information.shape != (6, 6) or not np.isfinite(information).all():
+        raise ValueError("information must be a finite (6,6) matrix")
+    information = 0.5 * (information + information.T)
+    if np.linalg.eigvalsh(information).min() <= 0:
+        raise ValueError("loop information must be positive definite")
+    return information
+
+
+# -- factors and noise models -------------------------------------------------------------------
+
+
+def _prior_factor(T_world_lidar: np.ndarray):
+    """The gauge prior on keyframe 0 at ``T_world_lidar`` (4,4), sigmas ``_PRIOR_SIGMAS``."""
+    import gtsam
+
+    key = _symbol(0)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(_PRIOR_SIGMAS)
+    return gtsam.PriorFactorPose3(key, gtsam.Pose3(T_world_lidar), noise)
+
+
+def _odometry_factor(index: int, T_prev_curr: np.ndarray, sigmas: np.ndarray) -> tuple[object, GraphEdge]:
+    """``BetweenFactor(X(index-1), X(index), T_prev_curr)`` with diagonal noise ``sigmas`` (GTSAM
+    order), and its edge for export."""
+    import gtsam
+
+    key = _symbol(index)
+    noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+    factor = gtsam.BetweenFactorPose3(_symbol(index - 1), key, gtsam.Pose3(T_prev_curr), noise)
+    return factor, GraphEdge(index - 1, index, T_prev_curr, np.diag(1.0 / sigmas**2), "odometry")
+
+
+def _loop_factor(
+    query: int, match: int, T_match_query: np.ndarray, information: np.ndarray, huber_k: float
+) -> tuple[object, GraphEdge]:
+    """``BetweenFactor(X(match), X(query), T_match_query)`` with Gaussian noise of ``information``
+    (6,6, GTSAM order) behind a Huber kernel of threshold ``huber_k`` sigmas, and its edge."""
+    import gtsam
+
+    noise = gtsam.noiseModel.Robust.Create(
+        gtsam.noiseModel.mEstimator.Huber.Create(huber_k),
+        gtsam.noiseModel.Gaussian.Information(information),
+    )
+    factor = gtsam.BetweenFactorPose3(_symbol(match), _symbol(query), gtsam.Pose3(T_match_query), noise)
+    return factor, GraphEdge(int(match), int(query), T_match_query, information, "loop")
+
+
+# -- iSAM2 plumbing -----------------------------------------------------------------------------
+
+
+def _factor_graph(factors: Iterable[object] = ()):
+    """A ``NonlinearFactorGraph`` holding ``factors`` in order."""
+    import gtsam
+
+    graph = gtsam.NonlinearFactorGraph()
+    for factor in factors:
+        graph.add(factor)
+    return graph
+
+
+def _values(poses: dict[int, np.ndarray]):
+    """``gtsam.Values`` with ``Pose3(T)`` at ``X(k)`` for every ``k: T`` (4,4)."""
+    import gtsam
+
+    values = gtsam.Values()
+    for k, T in poses.items():
+        values.insert(_symbol(k), gtsam.Pose3(T))
+    return values
+
+
+class _Isam2:
+    """An iSAM2 solver and every factor it has accepted, so that it can be rebuilt from them after
+    a failed update. Keys are ``X(k)`` for keyframes ``k``; poses go in and out as (4,4) arrays."""
+
+    def __init__(self, relinearize_threshold: float, relinearize_skip: int) -> None:
+        self.relinearize_threshold = relinearize_threshold
+        self.relinearize_skip = relinearize_skip
+        self.isam = self._new_isam()
+        self.accepted = _factor_graph()
+
+    def _new_isam(self):
+        import gtsam
+
+        params = gtsam.ISAM2Params()
+        params.setRelinearizeThreshold(self.relinearize_threshold)
+        params.relinearizeSkip = self.relinearize_skip
+        return gtsam.ISAM2(params)
+
+    def accept(self, factors: Iterable[object]) -> None:
+        """Record ``factors`` as held by the solver (after a successful update)."""
+        for factor in factors:
+            self.accepted.add(factor)
+
+    def rebuild(self, factors: list[object], poses: dict[int, np.ndarray]) -> None:
+        """A fresh iSAM2 holding the accepted factors plus ``factors`` (not yet accepted), with
+        ``poses`` as the values."""
+        graph = _factor_graph([self.accepted.at(i) for i in range(self.accepted.size())] + factors)
+        self.isam = self._new_isam()
+        self.isam.update(graph, _values(poses))
+
+    def force_relinearize(self, times: int) -> None:
+        """``times`` empty ``ISAM2.update`` calls with forced relinearisation."""
+        import gtsam
+
+        for _ in range(times):
+            params = gtsam.ISAM2UpdateParams()
+            params.force_relinearize = True
+            self.isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
+
+    def estimates(self, n: int) -> dict[int, np.ndarray]:
+        """Current estimate of every key ``X(0..n-1)`` the solver holds, as 4x4 arrays."""
+        estimate = self.isam.calculateEstimate()
+        return {k: estimate.atPose3(_symbol(k)).matrix() for k in range(n) if estimate.exists(_symbol(k))}
+
+    def pose(self, k: int) -> np.ndarray:
+        """Current (4,4) estimate of keyframe ``k``."""
+        return self.isam.calculateEstimatePose3(_symbol(k)).matrix()
+
+    def poses(self, n: int) -> np.ndarray:
+        """Current (n,4,4) estimate of keyframes ``0..n-1``."""
+        estimate = self.isam.calculateEstimate()
+        return np.array([estimate.atPose3(_symbol(k)).matrix() for k in range(n)])
 
 
 class PoseGraph:
@@ -97,36 +233,15 @@ class PoseGraph:
         if huber_k <= 0:
             raise ValueError("huber_k must be positive")
         self.huber_k = float(huber_k)
-        self.relinearize_threshold = float(relinearize_threshold)
-        self.relinearize_skip = int(relinearize_skip)
         self.extra_updates = int(extra_updates)
         self.edges: list[GraphEdge] = []
         self.dropped_loops: list[tuple[int, int]] = []
         self._n = 0
-        self._first_pose: np.ndarray | None = None
         self._latest: dict[int, np.ndarray] = {}  # last estimate of recently added keys
-        self._isam = self._new_isam()
-        self._committed = self._graph()  # every factor iSAM2 has accepted (for rebuilds)
-        self._committed_edges = 0  # edges (in self.edges) covered by _committed
+        self._solver = _Isam2(float(relinearize_threshold), int(relinearize_skip))
         self._pending_factors: list[tuple[object, GraphEdge | None]] = []
         self._pending_values: dict[int, np.ndarray] = {}
         self._initial: dict[int, np.ndarray] = {}
-
-    # -- construction --------------------------------------------------------------------------
-
-    @staticmethod
-    def _graph():
-        import gtsam
-
-        return gtsam.NonlinearFactorGraph()
-
-    def _new_isam(self):
-        import gtsam
-
-        params = gtsam.ISAM2Params()
-        params.setRelinearizeThreshold(self.relinearize_threshold)
-        params.relinearizeSkip = self.relinearize_skip
-        return gtsam.ISAM2(params)
 
     def __len__(self) -> int:
         return self._n
@@ -135,6 +250,8 @@ class PoseGraph:
     def loop_edges(self) -> list[GraphEdge]:
         """Loop factors currently in the graph (dropped ones excluded)."""
         return [e for e in self.edges if e.kind == "loop"]
+
+    # -- construction --------------------------------------------------------------------------
 
     def add_keyframe(
         self,
@@ -153,29 +270,20 @@ class PoseGraph:
                 ``inv(T_world_prev) @ T_world_lidar`` from the previous keyframe's given pose.
             sigmas: (6,) odometry sigmas, GTSAM order (rad ×3, m ×3). Required for ``index > 0``.
         """
-        import gtsam
-
         if index != self._n:
             raise ValueError(f"keyframes must be added in order: expected {self._n}, got {index}")
         T_world_lidar = _check_pose(T_world_lidar, "T_world_lidar")
-        key = _symbol(index)
         if index == 0:
-            noise = gtsam.noiseModel.Diagonal.Sigmas(_PRIOR_SIGMAS)
-            self._pending_factors.append((gtsam.PriorFactorPose3(key, gtsam.Pose3(T_world_lidar), noise), None))
-            self._first_pose = T_world_lidar
+            self._pending_factors.append((_prior_factor(T_world_lidar), None))
             initial = T_world_lidar
         else:
             if sigmas is None:
                 raise ValueError("odometry sigmas are required for keyframes after the first")
-            sigmas = np.asarray(sigmas, dtype=np.float64)
-            if sigmas.shape != (6,) or not (sigmas > 0).all():
-                raise ValueError("sigmas must be six positive numbers (rot rad x3, trans m x3)")
+            sigmas = _check_sigmas(sigmas)
             if T_prev_curr is None:
                 T_prev_curr = np.linalg.solve(self._initial[index - 1], T_world_lidar)
             T_prev_curr = _check_pose(T_prev_curr, "T_prev_curr")
-            noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
-            factor = gtsam.BetweenFactorPose3(_symbol(index - 1), key, gtsam.Pose3(T_prev_curr), noise)
-            edge = GraphEdge(index - 1, index, T_prev_curr, np.diag(1.0 / sigmas**2), "odometry")
+            factor, edge = _odometry_factor(index, T_prev_curr, sigmas)
             self.edges.append(edge)
             self._pending_factors.append((factor, edge))
             previous = self._latest_estimate(index - 1)
@@ -193,26 +301,14 @@ class PoseGraph:
             T_match_query: (4,4) measured pose of ``query`` in ``match``'s frame.
             information: (6,6) symmetric positive-definite information, GTSAM order (rot, trans).
         """
-        import gtsam
-
         for name, k in (("query", query), ("match", match)):
             if not 0 <= k < self._n:
                 raise ValueError(f"loop {name} keyframe {k} is not in the graph ({self._n} keyframes)")
         if query == match:
             raise ValueError("a loop needs two different keyframes")
         T_match_query = _check_pose(T_match_query, "T_match_query")
-        information = np.asarray(information, dtype=np.float64)
-        if information.shape != (6, 6) or not np.isfinite(information).all():
-            raise ValueError("information must be a finite (6,6) matrix")
-        information = 0.5 * (information + information.T)
-        if np.linalg.eigvalsh(information).min() <= 0:
-            raise ValueError("loop information must be positive definite")
-        noise = gtsam.noiseModel.Robust.Create(
-            gtsam.noiseModel.mEstimator.Huber.Create(self.huber_k),
-            gtsam.noiseModel.Gaussian.Information(information),
-        )
-        factor = gtsam.BetweenFactorPose3(_symbol(match), _symbol(query), gtsam.Pose3(T_match_query), noise)
-        edge = GraphEdge(int(match), int(query), T_match_query, information, "loop")
+        information = _check_information(information)
+        factor, edge = _loop_factor(query, match, T_match_query, information, self.huber_k)
         self.edges.append(edge)
         self._pending_factors.append((factor, edge))
 
@@ -220,23 +316,7 @@ class PoseGraph:
 
     def _isam_update(self, graph, values) -> None:
         """One ``ISAM2.update`` call (a seam for tests that simulate a GTSAM failure)."""
-        self._isam.update(graph, values)
-
-    def _force_relinearize(self) -> None:
-        import gtsam
-
-        params = gtsam.ISAM2UpdateParams()
-        params.force_relinearize = True
-        self._isam.update(gtsam.NonlinearFactorGraph(), gtsam.Values(), params)
-
-    @staticmethod
-    def _values(poses: dict[int, np.ndarray]):
-        import gtsam
-
-        values = gtsam.Values()
-        for k, T in poses.items():
-            values.insert(_symbol(k), gtsam.Pose3(T))
-        return values
+        self._solver.isam.update(graph, values)
 
     def update(self) -> list[tuple[int, int]]:
         """Hand the pending factors and values to iSAM2; returns the (query, match) loops dropped.
@@ -248,75 +328,51 @@ class PoseGraph:
         factors, values = self._pending_factors, self._pending_values
         self._pending_factors, self._pending_values = [], {}
         has_loop = any(edge is not None and edge.kind == "loop" for _, edge in factors)
-        snapshot = self._estimate_dict() if has_loop else {}
-        graph = self._graph()
-        for factor, _ in factors:
-            graph.add(factor)
+        snapshot = self._solver.estimates(self._n) if has_loop else {}
+        graph = _factor_graph(factor for factor, _ in factors)
         try:
-            self._isam_update(graph, self._values(values))
+            self._isam_update(graph, _values(values))
         except RuntimeError as err:
             if not has_loop:
                 raise
             log.warning("pose graph: iSAM2 update failed (%s); retrying loop factors one by one", err)
             return self._recover(factors, values, snapshot)
-        for factor, _ in factors:
-            self._committed.add(factor)
+        self._solver.accept(factor for factor, _ in factors)
         if has_loop:
-            for _ in range(self.extra_updates):
-                self._force_relinearize()
-        self._refresh_latest(values)
+            self._solver.force_relinearize(self.extra_updates)
+        self._refresh_latest()
         return []
-
-    def _estimate_dict(self) -> dict[int, np.ndarray]:
-        """Current estimate of every key iSAM2 holds, as 4x4 arrays."""
-        estimate = self._isam.calculateEstimate()
-        return {k: estimate.atPose3(_symbol(k)).matrix() for k in range(self._n) if estimate.exists(_symbol(k))}
 
     def _recover(
         self, factors: list, values: dict[int, np.ndarray], snapshot: dict[int, np.ndarray]
     ) -> list[tuple[int, int]]:
         """Rebuild iSAM2 from the accepted factors plus the new odometry, then add loops singly."""
-        odometry = [(f, e) for f, e in factors if e is None or e.kind != "loop"]
+        odometry = [f for f, e in factors if e is None or e.kind != "loop"]
         loops = [(f, e) for f, e in factors if e is not None and e.kind == "loop"]
-        estimate = dict(self._initial)
-        estimate.update(snapshot)
-        estimate.update(values)
-        graph = self._graph()
-        for i in range(self._committed.size()):
-            graph.add(self._committed.at(i))
-        for factor, _ in odometry:
-            graph.add(factor)
-        self._isam = self._new_isam()
-        self._isam.update(graph, self._values({k: estimate[k] for k in range(self._n)}))
-        for factor, _ in odometry:
-            self._committed.add(factor)
+        estimate = {**self._initial, **snapshot, **values}
+        every_key = {k: estimate[k] for k in range(self._n)}
+        self._solver.rebuild(odometry, every_key)
+        self._solver.accept(odometry)
         dropped = []
         for factor, edge in loops:
-            single = self._graph()
-            single.add(factor)
             try:
-                self._isam_update(single, self._values({}))
+                self._isam_update(_factor_graph([factor]), _values({}))
             except RuntimeError as err:
                 log.warning("pose graph: loop %d -> %d dropped: %s", edge.target, edge.source, err)
                 dropped.append((edge.target, edge.source))
                 self.edges = [e for e in self.edges if e is not edge]
                 self.dropped_loops.append((edge.target, edge.source))
-                graph = self._graph()
-                for i in range(self._committed.size()):
-                    graph.add(self._committed.at(i))
-                self._isam = self._new_isam()
-                self._isam.update(graph, self._values({k: estimate[k] for k in range(self._n)}))
+                self._solver.rebuild([], every_key)
                 continue
-            self._committed.add(factor)
-        for _ in range(self.extra_updates):
-            self._force_relinearize()
-        self._refresh_latest(values)
+            self._solver.accept([factor])
+        self._solver.force_relinearize(self.extra_updates)
+        self._refresh_latest()
         return dropped
 
-    def _refresh_latest(self, values: dict[int, np.ndarray]) -> None:
+    def _refresh_latest(self) -> None:
         if self._n:
             last = self._n - 1
-            self._latest = {last: self._isam.calculateEstimatePose3(_symbol(last)).matrix()}
+            self._latest = {last: self._solver.pose(last)}
 
     def _latest_estimate(self, k: int) -> np.ndarray | None:
         if k in self._pending_values:
@@ -326,46 +382,55 @@ class PoseGraph:
     def optimize(self, extra_updates: int = 0) -> np.ndarray:
         """Flush pending factors, optionally relinearise more, and return the (K,4,4) estimate."""
         self.update()
-        for _ in range(extra_updates):
-            self._force_relinearize()
+        self._solver.force_relinearize(extra_updates)
         if self._n == 0:
             return np.zeros((0, 4, 4))
-        estimate = self._isam.calculateEstimate()
-        poses = np.array([estimate.atPose3(_symbol(k)).matrix() for k in range(self._n)])
+        poses = self._solver.poses(self._n)
         self._latest = {self._n - 1: poses[-1]}
         return poses
 
-    # -- export ----------------------------------------------------------------------------------
-
     def g2o_text(self, poses: np.ndarray | None = None) -> str:
-        """The graph in g2o text format (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, ``FIX 0``).
-
-        Vertices carry ``poses`` (default: the current estimate). Edge information is written as
-        the upper triangle of the 6x6 matrix in g2o's order (x, y, z, then rotation), i.e. the
-        GTSAM blocks swapped, as GTSAM's own ``writeG2o`` does; the robust kernel of loop edges is
-        not representable in the format and is omitted.
-        """
-        if poses is None:
-            poses = self.optimize()
-        poses = np.asarray(poses, dtype=np.float64)
+        """The graph in g2o text (:func:`format_g2o`), vertices at ``poses`` (K,4,4) (default: the
+        current estimate)."""
+        poses = self.optimize() if poses is None else np.asarray(poses, dtype=np.float64)
         if poses.shape != (self._n, 4, 4):
             raise ValueError(f"expected ({self._n},4,4) poses, got {poses.shape}")
-        lines = []
-        for k, T in enumerate(poses):
-            lines.append(f"VERTEX_SE3:QUAT {k} " + " ".join(_pose_fields(T)))
-        if self._n:
-            lines.append("FIX 0")
-        order = [3, 4, 5, 0, 1, 2]
-        upper = np.triu_indices(6)
-        for edge in self.edges:
-            info = edge.information[np.ix_(order, order)][upper]
-            lines.append(
-                f"EDGE_SE3:QUAT {edge.source} {edge.target} "
-                + " ".join(_pose_fields(edge.T_source_target))
-                + " "
-                + " ".join(f"{v:.9g}" for v in info)
-            )
-        return "\n".join(lines) + "\n"
+        return format_g2o(poses, self.edges)
+
+
+# -- export ------------------------------------------------------------------------------------
+
+
+def format_g2o(poses: np.ndarray, edges: list[GraphEdge]) -> str:
+    """A pose graph in g2o text format (``VERTEX_SE3:QUAT``, ``EDGE_SE3:QUAT``, ``FIX 0``).
+
+    Vertices carry ``poses`` (K,4,4), ``T_world_lidar`` of keyframe k. Edge information is written
+    as the upper triangle of the 6x6 matrix in g2o's order (x, y, z, then rotation), i.e. the GTSAM
+    blocks swapped, as GTSAM's own ``writeG2o`` does; the robust kernel of loop edges is not
+    representable in the format and is omitted.
+    """
+    poses = np.asarray(poses, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4):
+        raise ValueError(f"expected (K,4,4) poses, got {poses.shape}")
+    n = len(poses)
+    if any(max(edge.source, edge.target) >= n for edge in edges):
+        raise ValueError(f"an edge refers to a keyframe beyond the {n} poses")
+    lines = []
+    for k, T in enumerate(poses):
+        lines.append(f"VERTEX_SE3:QUAT {k} " + " ".join(_pose_fields(T)))
+    if n:
+        lines.append("FIX 0")
+    order = [3, 4, 5, 0, 1, 2]
+    upper = np.triu_indices(6)
+    for edge in edges:
+        info = edge.information[np.ix_(order, order)][upper]
+        lines.append(
+            f"EDGE_SE3:QUAT {edge.source} {edge.target} "
+            + " ".join(_pose_fields(edge.T_source_target))
+            + " "
+            + " ".join(f"{v:.9g}" for v in info)
+        )
+    return "\n".join(lines) + "\n"
 
 
 def _pose_fields(T: np.ndarray) -> list[str]:

@@ -43,8 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.loop.records import Verdict
-from lidar3d.loop.rigid import nearest_rigid
-from lidar3d.mapping.se3 import invert, transform_points
+from lidar3d.mapping.se3 import invert, nearest_rigid, transform_points
 from lidar3d.mapping.voxel import voxel_downsample, voxel_keys
 
 __all__ = [

@@ -20,7 +20,7 @@ def add_scan_to_map(dense_map: VoxelMap, scan: Scan, T_world_lidar: np.ndarray, 
     to ``dense_map`` at ``T_world_lidar``."""
     final = deskew_scan(scan, twist)
     r = np.linalg.norm(final.points, axis=1)
-    keep = (r >= config.sensor.min_range_m) & (r <= config.sensor.sensor.max_range_m)
+    keep = (r >= config.sensor.min_range_m) & (r <= config.sensor.resolved_model.max_range_m)
     dense_map.insert(transform_points(T_world_lidar, final.points[keep]), final.intensity[keep])
 
 

@@ -8,10 +8,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.mapping.registration import LineMap, PlaneMap
-from lidar3d.mapping.se3 import transform_points
+from lidar3d.mapping.se3 import invert, transform_points
 from lidar3d.mapping.voxel import voxel_downsample
 
-__all__ = ["Keyframe", "SubmapTarget", "Submap"]
+__all__ = ["Keyframe", "KeyframeSelector", "SubmapTarget", "Submap"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -33,6 +33,41 @@ class Keyframe:
     T_world_lidar: np.ndarray
     corner_points: np.ndarray
     surf_points: np.ndarray
+
+
+class KeyframeSelector:
+    """Decides which scans become keyframes: after enough motion since the latest keyframe.
+
+    Spacing is measured from the latest keyframe's pose as the pipeline last knew it
+    (:meth:`anchor`: at selection, and again when re-registration or a loop closure moves it).
+
+    Args:
+        distance_m: travelled distance that makes a keyframe.
+        angle_deg: rotation that makes a keyframe.
+        min_surface_points: scans with fewer surface points (less-flat, outliers, ground) never
+            become keyframes (they would add nothing to match against).
+    """
+
+    def __init__(self, *, distance_m: float, angle_deg: float, min_surface_points: int) -> None:
+        self.distance_m = distance_m
+        self.angle_deg = angle_deg
+        self.min_surface_points = min_surface_points
+        self._anchor: np.ndarray | None = None
+
+    def is_due(self, T_world_lidar: np.ndarray, n_surface_points: int) -> bool:
+        """Whether a scan at ``T_world_lidar`` (4,4) with that many surface points is a keyframe."""
+        if n_surface_points < self.min_surface_points:
+            return False
+        if self._anchor is None:
+            return True
+        delta = invert(self._anchor) @ T_world_lidar
+        moved = np.linalg.norm(delta[:3, 3])
+        angle = np.degrees(np.arccos(np.clip((np.trace(delta[:3, :3]) - 1) / 2, -1, 1)))
+        return bool(moved >= self.distance_m or angle >= self.angle_deg)
+
+    def anchor(self, T_world_lidar: np.ndarray) -> None:
+        """Measure the spacing of the next keyframes from ``T_world_lidar`` (the latest keyframe)."""
+        self._anchor = T_world_lidar
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,17 +1,17 @@
-"""Trajectory metrics: association, alignment (SE(3), yaw, none), ATE, RPE, SPAN evaluation, reports.
+"""Trajectory metrics: association, alignment (SE(3), yaw, none), ATE, RPE, SPAN evaluation.
 
 Pure metric code (``association``, ``alignment``, ``ate``, ``rpe``, ``evaluation``) works on
-:class:`~lidar3d.records.Trajectory` records and arrays; ``span_eval`` adds the SPAN reference and
-``report`` writes files.
+:class:`~lidar3d.records.Trajectory` records and arrays; ``span_eval`` adds the SPAN reference. Nothing
+here writes files: the report (JSON, CSV, plots, text table) is :mod:`lidar3d.export.span_report`.
 """
 
 from lidar3d.metrics.alignment import AlignmentMode, align_trajectories, umeyama_se3, yaw_alignment
-from lidar3d.metrics.association import Association, associate, interpolate_poses
+from lidar3d.metrics.association import Association, associate, interpolate_reference
 from lidar3d.metrics.ate import AbsoluteErrors, AteStatistics, absolute_errors
 from lidar3d.metrics.errors import EvaluationError
 from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
 from lidar3d.metrics.rpe import DistanceRpe, KittiRpe, distance_rpe, kitti_rpe
-from lidar3d.metrics.span_eval import SpanEvaluation, evaluate_against_span, evaluate_span_files, read_trajectory
+from lidar3d.metrics.span_eval import SpanEvaluation, evaluate_against_span, evaluate_span_files
 from lidar3d.metrics.statistics import ErrorStatistics
 
 __all__ = [
@@ -32,9 +32,8 @@ __all__ = [
     "evaluate_against_span",
     "evaluate_span_files",
     "evaluate_trajectory",
-    "interpolate_poses",
+    "interpolate_reference",
     "kitti_rpe",
-    "read_trajectory",
     "umeyama_se3",
     "yaw_alignment",
 ]

@@ -20,7 +20,7 @@ from scipy.spatial.transform import Rotation
 from lidar3d.metrics.errors import EvaluationError
 from lidar3d.records import Trajectory
 
-__all__ = ["Association", "interpolate_poses", "associate"]
+__all__ = ["Association", "associate", "interpolate_reference"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -60,10 +60,13 @@ class Association:
         return int(self.stamps_ns.shape[0])
 
 
-def interpolate_poses(
+def interpolate_reference(
     reference: Trajectory, stamps_ns: np.ndarray, max_gap_s: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Reference poses at ``stamps_ns``.
+    """Reference poses at ``stamps_ns``, only where the reference brackets them within ``max_gap_s``.
+
+    Unlike ``interpolate_poses`` of the mapping geometry, which clamps outside the samples, a stamp
+    the reference does not cover (outside its span, or across a longer gap) is marked invalid.
 
     Returns ``(valid, T, nearest)``: a (K,) bool mask of the stamps that could be interpolated,
     their (V, 4, 4) poses, and the (V,) index of the nearest reference sample of each.
@@ -117,7 +120,7 @@ def associate(estimate: Trajectory, reference: Trajectory, max_gap_s: float) -> 
             f"no time overlap: trajectory spans {_span_text(estimate.stamps_ns)}, "
             f"reference spans {_span_text(reference.stamps_ns)} (check --time-offset and leap seconds)"
         )
-    valid, T_reference, nearest = interpolate_poses(reference, estimate.stamps_ns, max_gap_s)
+    valid, T_reference, nearest = interpolate_reference(reference, estimate.stamps_ns, max_gap_s)
     index = np.flatnonzero(valid)
     return Association(
         stamps_ns=estimate.stamps_ns[index],

@@ -1,10 +1,10 @@
-"""Evaluate a lidar trajectory against NovAtel SPAN ground truth: the library twin of ``lidar3d eval``.
+"""Evaluate a lidar trajectory against NovAtel SPAN ground truth: the computation behind ``lidar3d eval``.
 
 ``evaluate_against_span`` takes a trajectory in memory (as ``lidar3d run --span`` has it);
 ``evaluate_span_files`` reads the trajectory file first (TUM, or KITTI with ``.times.txt``). Both
 read the log, build the ENU reference (:mod:`lidar3d.gnss.reference`), evaluate
-(:mod:`lidar3d.metrics.evaluation`) and, given ``out_dir``, write the report
-(:mod:`lidar3d.metrics.report`).
+(:mod:`lidar3d.metrics.evaluation`) and return a :class:`SpanEvaluation`; they write nothing. The
+report files are written by :func:`lidar3d.export.span_report.write_span_report`.
 """
 
 from __future__ import annotations
@@ -21,12 +21,12 @@ from lidar3d.gnss.enu import GeodeticOrigin
 from lidar3d.gnss.novatel import SpanLog
 from lidar3d.gnss.reader import read_span_log
 from lidar3d.gnss.reference import InsReference, origin_from_config, span_reference
-from lidar3d.io.trajectory_io import TrajectoryFileError, read_kitti, read_tum
+from lidar3d.io.trajectory_io import read_trajectory
 from lidar3d.metrics.alignment import AlignmentMode
 from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
 from lidar3d.records import Trajectory
 
-__all__ = ["SpanEvaluation", "evaluate_against_span", "evaluate_span_files", "read_trajectory"]
+__all__ = ["SpanEvaluation", "evaluate_against_span", "evaluate_span_files"]
 
 logger = logging.getLogger(__name__)
 
@@ -42,7 +42,6 @@ class SpanEvaluation:
         T_imu_lidar: (4, 4) extrinsic applied to the reference.
         config: the resolved ``gnss`` settings.
         trajectory_source, span_source: file names where known, for the report.
-        report_files: paths written by the report (empty without ``out_dir``).
     """
 
     evaluation: Evaluation
@@ -52,44 +51,6 @@ class SpanEvaluation:
     config: GnssConfig
     trajectory_source: str = ""
     span_source: str = ""
-    report_files: tuple[Path, ...] = ()
-
-
-def _malformed_kitti_line(path: Path) -> str:
-    for lineno, line in enumerate(path.read_text(encoding="utf-8").splitlines(), start=1):
-        for token in line.split():
-            try:
-                float(token)
-            except ValueError:
-                return f"{path}:{lineno}: not a number ({token!r}) in {line.strip()!r}"
-    return f"{path}: malformed KITTI trajectory"
-
-
-def read_trajectory(path: str | Path) -> Trajectory:
-    """Read a TUM (8 columns) or KITTI (12 columns, stamps from ``.times.txt``) trajectory.
-
-    The format is taken from the first data row. Raises :class:`TrajectoryFileError` naming the line
-    of a malformed row.
-    """
-    path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise TrajectoryFileError(f"{path}: trajectory file not found") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise TrajectoryFileError(f"{path}: cannot read trajectory file: {err}") from err
-    first = next((ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith("#")), None)
-    if first is None:
-        raise TrajectoryFileError(f"{path}: trajectory file has no poses")
-    columns = len(first.replace(",", " ").split())
-    if columns == 12:
-        try:
-            return read_kitti(path)
-        except ValueError as err:
-            if isinstance(err, TrajectoryFileError):
-                raise
-            raise TrajectoryFileError(_malformed_kitti_line(path)) from err
-    return read_tum(path)
 
 
 def _log_of(span_log: str | Path | SpanLog) -> SpanLog:
@@ -104,7 +65,6 @@ def evaluate_against_span(
     config: GnssConfig | None = None,
     align: AlignmentMode | str | None = None,
     origin: GeodeticOrigin | None = None,
-    out_dir: str | Path | None = None,
     trajectory_source: str = "",
 ) -> SpanEvaluation:
     """Evaluate ``estimate`` (lidar poses, bag clock) against the INS solutions of a SPAN log.
@@ -118,7 +78,7 @@ def evaluate_against_span(
             RPE lengths); defaults if None.
         align: overrides ``config.align``.
         origin: ENU origin; else ``config.origin``, else the first kept solution.
-        out_dir: when given, the JSON/CSV/PNG report is written there.
+        trajectory_source: the trajectory's file name, where known, for the report.
 
     Raises :class:`~lidar3d.errors.GnssError` (unreadable log, no usable pose, INS never aligned),
     :class:`~lidar3d.metrics.errors.EvaluationError` (no time overlap, too few associated poses).
@@ -152,11 +112,6 @@ def evaluate_against_span(
         trajectory_source=trajectory_source,
         span_source=log.source,
     )
-    if out_dir is not None:
-        from lidar3d.metrics.report import write_report
-
-        files = write_report(result, out_dir)
-        result = dataclasses.replace(result, report_files=tuple(files))
     logger.debug(
         "ATE %s: rmse %.3f m over %d poses", mode.value, evaluation.ate.translation_3d_m.rmse, evaluation.n_associated
     )
@@ -166,7 +121,6 @@ def evaluate_against_span(
 def evaluate_span_files(
     trajectory_path: str | Path,
     span_path: str | Path,
-    out_dir: str | Path | None = None,
     *,
     extrinsics_path: str | Path | None = None,
     align: AlignmentMode | str | None = None,
@@ -174,9 +128,12 @@ def evaluate_span_files(
     origin: GeodeticOrigin | None = None,
     config: GnssConfig | None = None,
 ) -> SpanEvaluation:
-    """``lidar3d eval TRAJECTORY --span LOG [--extrinsics FILE] [--align] [--time-offset] [--origin] --out DIR``.
+    """``lidar3d eval TRAJECTORY --span LOG [--extrinsics FILE] [--align] [--time-offset] [--origin]``.
 
+    Reads the trajectory with :func:`lidar3d.io.trajectory_io.read_trajectory` (TUM or KITTI);
     ``time_offset_s`` and ``origin`` override the config's; see :func:`evaluate_against_span`.
+    ``lidar3d eval --out DIR`` then writes the report with
+    :func:`lidar3d.export.span_report.write_span_report`.
     """
     from lidar3d.gnss.extrinsic import read_extrinsic
 
@@ -192,6 +149,5 @@ def evaluate_span_files(
         config=config,
         align=align,
         origin=origin,
-        out_dir=out_dir,
         trajectory_source=str(trajectory_path),
     )

@@ -107,7 +107,7 @@ def _rows(scan: Scan, range_m: np.ndarray, sensor: SensorModel, use_ring_field: 
 
 
 def project_scan(scan: Scan, sensor_config: SensorConfig, config: SegmentationConfig) -> RangeImage:
-    """Project ``scan`` onto the range image of ``sensor_config.sensor``.
+    """Project ``scan`` onto the range image of ``sensor_config.resolved_model``.
 
     Points closer than ``sensor_config.min_range_m``, farther than the sensor's maximum range, or
     non-finite are left out. Rows come from ``scan.ring`` when ``config.use_ring_field`` is set and
@@ -115,7 +115,7 @@ def project_scan(scan: Scan, sensor_config: SensorConfig, config: SegmentationCo
     a beam spacing outside the table are left out). Column (IP:235-242, REP-105 axes):
     ``round(atan2(y, x) / resolution) + C/2`` modulo ``C``.
     """
-    sensor = sensor_config.sensor
+    sensor = sensor_config.resolved_model
     n_rows, n_columns = sensor.n_rings, sensor.n_columns
     if len(scan) == 0:
         return RangeImage.empty(sensor)

@@ -1,8 +1,8 @@
 """Adapter: loop-closure outputs on disk — ``loops.csv``, ``pose_graph.g2o``, the top-view PNG.
 
-This module belongs to the adapter layer (it writes files, atomically, through
-:mod:`lidar3d.io.atomic`); the rest of :mod:`lidar3d.loop` is pure computation and does not import
-it. Matplotlib is imported only when a plot is drawn, on an Agg canvas (no display needed).
+Writes files atomically through :mod:`lidar3d.io.atomic`, from the records of :mod:`lidar3d.loop`
+(pure computation, which does not import this module). Matplotlib is imported only when a plot is
+drawn, on an Agg canvas (no display needed).
 """
 
 from __future__ import annotations
@@ -20,9 +20,9 @@ from lidar3d.loop.records import LoopCandidate
 __all__ = [
     "LOOPS_CSV_COLUMNS",
     "loops_csv_text",
+    "top_view_png",
     "write_loops_csv",
     "write_pose_graph_g2o",
-    "top_view_png",
     "write_top_view",
 ]
 

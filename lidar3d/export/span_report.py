@@ -1,6 +1,9 @@
-"""Evaluation report: ``report.json``, per-pose ``errors.csv``, PNG plots, TUM files, a text table.
+"""Adapter: the SPAN evaluation report — ``report.json``, per-pose ``errors.csv``, PNG plots, TUM files,
+and the text table ``lidar3d eval`` prints.
 
-Files written (atomically) into the output folder:
+Turns a :class:`~lidar3d.metrics.span_eval.SpanEvaluation` (computed by
+:func:`~lidar3d.metrics.span_eval.evaluate_against_span`, which writes nothing) into files. Written
+(atomically) into the output folder by :func:`write_span_report`:
 
 * ``report.json``: inputs, settings, origin, alignment, counts, ATE/RPE statistics (NaN -> null);
 * ``errors.csv``: one row per associated pose: stamp, reference and aligned estimate ENU position,
@@ -29,7 +32,7 @@ from lidar3d.io.trajectory_io import write_tum
 from lidar3d.metrics.span_eval import SpanEvaluation
 from lidar3d.records import Trajectory
 
-__all__ = ["report_dict", "write_report", "format_table"]
+__all__ = ["format_span_table", "span_report_dict", "write_span_report"]
 
 _QUALITY_COLOURS = {
     "RTK fixed": "#1a9850",
@@ -65,7 +68,7 @@ def _quality(result: SpanEvaluation) -> tuple[np.ndarray, np.ndarray, list[str]]
     return status, position_type, classes
 
 
-def report_dict(result: SpanEvaluation) -> dict:
+def span_report_dict(result: SpanEvaluation) -> dict:
     """The JSON report as a dict (see the module docstring)."""
     ev = result.evaluation
     ref = result.reference
@@ -239,13 +242,13 @@ def _plots(result: SpanEvaluation) -> dict[str, bytes]:
     return plots
 
 
-def write_report(result: SpanEvaluation, out_dir: str | Path) -> list[Path]:
+def write_span_report(result: SpanEvaluation, out_dir: str | Path) -> list[Path]:
     """Write the report files into ``out_dir`` (created if needed); returns their paths."""
     out = Path(out_dir)
     ev = result.evaluation
     written = []
     path = out / "report.json"
-    write_text_atomic(path, json.dumps(report_dict(result), indent=2, allow_nan=False) + "\n")
+    write_text_atomic(path, json.dumps(span_report_dict(result), indent=2, allow_nan=False) + "\n")
     written.append(path)
     path = out / "errors.csv"
     write_text_atomic(path, _csv(result))
@@ -268,7 +271,7 @@ def _row(label: str, stats, scale: float = 1.0, digits: int = 3) -> str:
     return f"  {label:<22}{cells}"
 
 
-def format_table(result: SpanEvaluation) -> str:
+def format_span_table(result: SpanEvaluation) -> str:
     """A short text table of the results (what ``lidar3d eval`` prints)."""
     ev = result.evaluation
     ref = result.reference

@@ -1,0 +1,71 @@
+"""A sweep's features as mapping uses them: deskewed with a motion, reduced to registration clouds.
+
+The front end hands over a sweep's features as fired (each point at its own time in the sweep).
+Mapping deskews them to the scan stamp with a body twist, more than once when a better estimate
+of the motion over the sweep arrives, and registers or stores two clouds made from them:
+
+* corner cloud: the less-sharp edge features, voxel-downsampled;
+* surface cloud: the less-flat planar features, the cluster outliers and the dense ground,
+  voxel-downsampled (the ground fixes z, roll and pitch).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidar3d.config import MappingConfig
+from lidar3d.features.frontend import PreparedScan
+from lidar3d.features.records import FeatureCloud, FeatureSet
+from lidar3d.mapping.deskew import deskew_features, deskew_points
+from lidar3d.mapping.voxel import voxel_downsample
+
+__all__ = ["SweepFeatures"]
+
+
+@dataclass(frozen=True, slots=True)
+class SweepFeatures:
+    """A sweep's feature set plus its dense ground cloud (lidar frame).
+
+    Attributes:
+        features: edge/planar features; as fired, or deskewed when made by :meth:`deskewed`
+            (time offsets are kept either way, so a sweep can be deskewed again).
+        ground: every ground cell of the range image, same frame and timing as ``features``.
+    """
+
+    features: FeatureSet
+    ground: FeatureCloud
+
+    @classmethod
+    def of(cls, prepared: PreparedScan) -> SweepFeatures:
+        """The features of a front-end output, as fired."""
+        return cls(prepared.features, prepared.ground)
+
+    @property
+    def n_surface_points(self) -> int:
+        """Points of the surface cloud before downsampling (less-flat, outliers, ground)."""
+        return len(self.features.less_flat) + len(self.features.outliers) + len(self.ground)
+
+    def deskewed(self, twist: np.ndarray) -> SweepFeatures:
+        """Every point moved to the lidar frame at the stamp with the constant body ``twist``
+        (6,) (v m/s, w rad/s); only valid on a sweep as fired."""
+        ground = FeatureCloud(
+            deskew_points(self.ground.points, self.ground.time_offset_s, twist), self.ground.ring, self.ground.time_offset_s
+        )
+        return SweepFeatures(deskew_features(self.features, twist), ground)
+
+    def registration_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray]:
+        """(M,3) corner and (K,3) surface clouds, voxel-downsampled with the map's voxel sizes."""
+        f = self.features
+        corner = voxel_downsample(f.less_sharp.points, config.corner_voxel_m)
+        surf = voxel_downsample(
+            np.concatenate([f.less_flat.points, f.outliers.points, self.ground.points]), config.surf_voxel_m
+        )
+        return corner, surf
+
+    def keyframe_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`registration_clouds` in float32, as a keyframe keeps them for the whole run
+        (sub-millimetre within the lidar's range)."""
+        corner, surf = self.registration_clouds(config)
+        return corner.astype(np.float32), surf.astype(np.float32)

@@ -1,0 +1,273 @@
+"""The tracker: one verb, :meth:`Tracker.track`, from a front-end output to a pose.
+
+Per scan (each pose is the lidar pose at the scan's header stamp, see :mod:`lidar3d.mapping.deskew`):
+
+1. deskew the sweep to its stamp with the motion model's predicted twist;
+2. scan-to-scan odometry (two-step LM, :class:`~lidar3d.mapping.odometry.ScanToScanOdometry`) from
+   the motion-model guess;
+3. scan-to-submap refinement (6-DoF) from the odometry guess; along directions the submap leaves
+   degenerate it takes the motion model's vehicle prediction
+   (:class:`~lidar3d.mapping.motion_model.MotionModel`) instead;
+4. the motion model learns the twist between the previous pose and this one;
+5. the previous sweep is settled: now that the motion over it (the forward difference to this
+   pose) is known, it is deskewed with that motion and re-registered when that moves a point by
+   more than ``redeskew_threshold_m`` compared with the prediction it was registered with.
+
+The tracker reads the submap (keyframes are added by the pipeline) and owns everything else it
+needs: the odometry, the motion model, the latest pose and the sweep waiting to be settled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidar3d.config import Config
+from lidar3d.features.frontend import PreparedScan
+from lidar3d.mapping.deskew import twist_between
+from lidar3d.mapping.keyframes import Submap
+from lidar3d.mapping.motion_model import MotionModel
+from lidar3d.mapping.odometry import OdometryStep, ScanToScanOdometry
+from lidar3d.mapping.registration import SolveResult
+from lidar3d.mapping.scan_to_map import register_to_submap
+from lidar3d.mapping.se3 import exp_se3
+from lidar3d.mapping.sweep import SweepFeatures
+from lidar3d.mapping.voxel import voxel_downsample
+from lidar3d.records import Scan
+from lidar3d.timing import StageClock
+
+__all__ = ["SettledSweep", "TrackResult", "Tracker"]
+
+
+@dataclass(frozen=True, slots=True)
+class SettledSweep:
+    """A sweep whose pose and motion are final (until a loop closure moves the keyframes).
+
+    Attributes:
+        scan: the raw sweep.
+        sweep: its features as fired (not deskewed).
+        T_world_lidar: (4,4) lidar pose at its stamp, re-registered when ``revised``.
+        twist: (6,) body twist over the sweep (v m/s, w rad/s) to deskew it with for the map
+            and the keyframe clouds.
+        revised: the pose was re-registered with the sweep deskewed by ``twist``.
+    """
+
+    scan: Scan
+    sweep: SweepFeatures
+    T_world_lidar: np.ndarray
+    twist: np.ndarray
+    revised: bool
+
+
+@dataclass(frozen=True, slots=True)
+class TrackResult:
+    """What the tracker concluded for one scan.
+
+    Attributes:
+        stamp_ns: the scan's stamp.
+        T_world_lidar: (4,4) refined lidar pose at the stamp; the next scan may revise it (it is
+            then the ``settled`` sweep of the next result).
+        T_world_odom: (4,4) pose from chaining the scan-to-scan odometry alone.
+        motion_model_only: the features were too few, so the pose came from the motion model.
+        registration: the scan-to-submap registration (iterations, rows, degenerate directions,
+            smallest eigenvalue), None when it did not run (first scan, empty submap, too few
+            matches).
+        yaw_held: the registration held yaw at the motion model's prediction.
+        deskew_twist: (6,) the predicted twist the scan was deskewed and registered with.
+        settled: the previous sweep, final now (None for the first scan).
+        timings_ms: wall milliseconds per stage: deskew, odometry, mapping, redeskew (the last
+            only when a previous sweep was settled).
+    """
+
+    stamp_ns: int
+    T_world_lidar: np.ndarray
+    T_world_odom: np.ndarray
+    motion_model_only: bool
+    registration: SolveResult | None
+    yaw_held: bool
+    deskew_twist: np.ndarray
+    settled: SettledSweep | None
+    timings_ms: dict[str, float]
+
+    @property
+    def well_constrained(self) -> bool:
+        """The registration ran and left no direction degenerate."""
+        return self.registration is not None and self.registration.degenerate_axes == 0
+
+
+@dataclass(frozen=True, slots=True)
+class _Refinement:
+    T_world_lidar: np.ndarray
+    motion_model_only: bool
+    registration: SolveResult | None
+    yaw_held: bool
+
+
+@dataclass(frozen=True, slots=True)
+class _Latest:
+    """The latest tracked scan: where the next one starts from."""
+
+    stamp_ns: int
+    T_world_lidar: np.ndarray
+    T_world_odom: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class _Unsettled:
+    """The latest sweep, registered deskewed with ``deskew_twist``, waiting for its forward motion."""
+
+    scan: Scan
+    sweep: SweepFeatures
+    T_world_lidar: np.ndarray
+    deskew_twist: np.ndarray
+    registered: bool  # the pose came from a registration with no degenerate direction
+
+
+class Tracker:
+    """Deskew, odometry, scan-to-submap refinement, motion model and re-registration, per scan.
+
+    Args:
+        config: the run's configuration (``sensor``, ``odometry`` and ``mapping`` sections).
+        submap: the keyframe submap to register against (read only; the pipeline adds keyframes).
+    """
+
+    def __init__(self, config: Config, submap: Submap) -> None:
+        self._sweep_period_s = config.sensor.resolved_model.sweep_period_s
+        self._mapping = config.mapping
+        odo = config.odometry
+        self._odometry = ScanToScanOdometry(
+            n_rings=config.sensor.resolved_model.n_rings,
+            max_iterations=odo.max_iterations,
+            rematch_every=odo.rematch_every,
+            min_rows=odo.min_rows,
+            degeneracy_threshold=odo.degeneracy_threshold,
+            search_radius_m=odo.search_radius_m,
+            min_previous_edges=odo.min_previous_edges,
+            min_previous_planes=odo.min_previous_planes,
+        )
+        self._submap = submap
+        self._motion = MotionModel()
+        self._latest: _Latest | None = None
+        self._unsettled: _Unsettled | None = None
+
+    def track(self, prepared: PreparedScan) -> TrackResult:
+        """Estimate the pose of a scan with a later stamp than the previous one, and settle the
+        previous sweep."""
+        scan = prepared.scan
+        sweep = SweepFeatures.of(prepared)
+        clock = StageClock()
+        previous = self._latest
+        dt_s = (scan.stamp_ns - previous.stamp_ns) * 1e-9 if previous else 0.0
+        predicted = self._motion.prediction()
+        with clock("deskew"):
+            deskewed = sweep.deskewed(predicted)
+        with clock("odometry"):
+            step = self._odometry.update(deskewed.features, exp_se3(predicted * dt_s))
+        T_world_odom = previous.T_world_odom @ step.T_prev_curr if previous else np.eye(4)
+        with clock("mapping"):
+            refinement = self._refine(deskewed, previous, step, dt_s)
+        T_world_lidar = refinement.T_world_lidar
+        well_constrained = refinement.registration is not None and refinement.registration.degenerate_axes == 0
+        if previous is not None:
+            self._motion.update(
+                twist_between(previous.T_world_lidar, T_world_lidar, dt_s),
+                well_constrained=well_constrained,
+                heading_observed=not refinement.yaw_held,
+            )
+        settled = None
+        if self._unsettled is not None:
+            with clock("redeskew"):
+                settled = self._settle(self._unsettled, self._motion.twist)
+        self._unsettled = _Unsettled(scan, sweep, T_world_lidar, predicted, well_constrained)
+        self._latest = _Latest(scan.stamp_ns, T_world_lidar, T_world_odom)
+        return TrackResult(
+            stamp_ns=scan.stamp_ns,
+            T_world_lidar=T_world_lidar,
+            T_world_odom=T_world_odom,
+            motion_model_only=refinement.motion_model_only,
+            registration=refinement.registration,
+            yaw_held=refinement.yaw_held,
+            deskew_twist=predicted,
+            settled=settled,
+            timings_ms=clock.ms,
+        )
+
+    def finish(self) -> SettledSweep | None:
+        """End of input: the last sweep, settled with the latest motion (no re-registration);
+        None when there is none left."""
+        unsettled, self._unsettled = self._unsettled, None
+        if unsettled is None:
+            return None
+        return SettledSweep(unsettled.scan, unsettled.sweep, unsettled.T_world_lidar, self._motion.twist, revised=False)
+
+    def apply_correction(self, correction: np.ndarray) -> None:
+        """A loop closure moved the world under the latest scan: left-multiply its pose (and the
+        unsettled sweep's, the same scan) by the (4,4) world-frame ``correction``."""
+        if self._latest is not None:
+            latest = self._latest
+            self._latest = _Latest(latest.stamp_ns, correction @ latest.T_world_lidar, latest.T_world_odom)
+        if self._unsettled is not None:
+            u = self._unsettled
+            self._unsettled = _Unsettled(u.scan, u.sweep, correction @ u.T_world_lidar, u.deskew_twist, u.registered)
+
+    def _register(
+        self,
+        deskewed: SweepFeatures,
+        T_world_lidar: np.ndarray,
+        iterations: int,
+        T_prior: np.ndarray | None = None,
+        hold_yaw: bool = False,
+    ) -> SolveResult:
+        """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar`` (see
+        :func:`register_to_submap` for ``T_prior`` and ``hold_yaw``)."""
+        mp = self._mapping
+        corner, surf = deskewed.registration_clouds(mp)
+        surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
+        target = self._submap.target(T_world_lidar[:3, 3])
+        return register_to_submap(target, corner, surf, T_world_lidar, mp, iterations, T_prior, hold_yaw)
+
+    def _refine(self, deskewed: SweepFeatures, previous: _Latest | None, step: OdometryStep, dt_s: float) -> _Refinement:
+        """Scan-to-submap refinement of a sweep deskewed with the predicted motion.
+
+        Registration starts from the odometry pose; along directions the submap leaves
+        degenerate it takes the motion model's vehicle prediction instead (see
+        :mod:`lidar3d.mapping.motion_model`). :meth:`_settle` revisits the pose once the motion
+        over the sweep is known.
+        """
+        if previous is None:
+            return _Refinement(np.eye(4), False, None, False)
+        T_world_lidar = previous.T_world_lidar @ step.T_prev_curr
+        if not len(self._submap):
+            return _Refinement(T_world_lidar, step.used_motion_model, None, False)
+        mp = self._mapping
+        straight = abs(np.degrees(self._motion.twist[5])) < mp.straight_max_yaw_rate_deg_s
+        # LOAM keeps the odometry guess along degenerate directions. On a straight the vehicle's
+        # constant-velocity prediction is the better value there: the odometry's edges are then
+        # mostly far structure (90 m away on open land), whose azimuth-quantised edge points stay
+        # put from sweep to sweep and pull the step short (2-4 cm per scan on `long`). In a turn
+        # the prediction lags, so the odometry guess is kept unless its edge step was blind too.
+        T_prior = None
+        if self._motion.established and (straight or not step.edge_observed):
+            T_prior = previous.T_world_lidar @ exp_se3(self._motion.vehicle_twist() * dt_s)
+        refined = self._register(deskewed, T_world_lidar, mp.max_iterations, T_prior=T_prior, hold_yaw=straight)
+        if refined.iterations == 0:
+            return _Refinement(T_world_lidar, step.used_motion_model, None, False)
+        yaw_held = T_prior is not None and straight and 0 < mp.hold_yaw_min_degenerate <= refined.degenerate_axes
+        return _Refinement(refined.T_target_source, False, refined, yaw_held)
+
+    def _settle(self, unsettled: _Unsettled, twist: np.ndarray) -> SettledSweep:
+        """The unsettled sweep, re-registered with its sweep deskewed by ``twist`` (its forward
+        motion) when that differs enough from the prediction it was registered with. Scans that
+        were not fully constrained keep their pose: their free directions came from the motion
+        model, which the forward difference would only echo."""
+        mp = self._mapping
+        kept = SettledSweep(unsettled.scan, unsettled.sweep, unsettled.T_world_lidar, twist, revised=False)
+        change = twist - unsettled.deskew_twist
+        moved_m = max(np.linalg.norm(change[:3]), mp.redeskew_lever_m * np.linalg.norm(change[3:]))
+        if not unsettled.registered or moved_m * self._sweep_period_s < mp.redeskew_threshold_m:
+            return kept
+        refined = self._register(unsettled.sweep.deskewed(twist), unsettled.T_world_lidar, mp.redeskew_iterations)
+        if refined.iterations == 0 or refined.degenerate_axes:
+            return kept
+        return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)

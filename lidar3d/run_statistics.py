@@ -1,0 +1,77 @@
+"""What a SLAM run counts and times while it goes: per-stage milliseconds, counters, warnings.
+
+The counters (``scans``, ``dropped_duplicate_stamps``, ``motion_model_scans``,
+``degenerate_scans``, ``redeskewed_scans``, ``loop_closures``...) end up in ``summary.json``.
+Stretches of scans whose pose came from the motion model alone are reported as one warning each.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import defaultdict
+
+import numpy as np
+
+__all__ = ["RunStatistics"]
+
+log = logging.getLogger(__name__)
+
+
+class RunStatistics:
+    """Timings, counters and warnings of one run.
+
+    Attributes:
+        counts: counter name -> value.
+        loop_ms: milliseconds spent in loop detection and the pose graph.
+    """
+
+    def __init__(self) -> None:
+        self._timings: dict[str, list[float]] = defaultdict(list)
+        self.counts: dict[str, int] = defaultdict(int)
+        self.loop_ms = 0.0
+        self._warnings: list[str] = []
+        self._fallback_start: int | None = None
+
+    def add_timings(self, stage_ms: dict[str, float]) -> None:
+        """Append one scan's milliseconds per stage."""
+        for stage, ms in stage_ms.items():
+            self._timings[stage].append(ms)
+
+    def count(self, name: str, n: int = 1) -> None:
+        self.counts[name] += n
+
+    def scan_tracked(self, scan_index: int, motion_model_only: bool) -> None:
+        """Note whether scan ``scan_index`` was posed by the motion model alone; a stretch of such
+        scans becomes a warning when it ends."""
+        if motion_model_only:
+            self.counts["motion_model_scans"] += 1
+            if self._fallback_start is None:
+                self._fallback_start = scan_index
+        elif self._fallback_start is not None:
+            self._close_fallback(scan_index)
+
+    def end_of_input(self, n_scans_seen: int) -> None:
+        """Close an open motion-model stretch at the end of the input (``n_scans_seen`` scans)."""
+        if self._fallback_start is not None:
+            self._close_fallback(n_scans_seen)
+
+    def timings_ms(self) -> dict[str, np.ndarray]:
+        """Stage name -> (N,) milliseconds per processed scan."""
+        return {k: np.asarray(v) for k, v in self._timings.items()}
+
+    def warnings(self, n_scans_seen: int) -> tuple[str, ...]:
+        """The warnings so far; an open motion-model stretch is reported up to the last scan."""
+        if self._fallback_start is None:
+            return tuple(self._warnings)
+        return (*self._warnings, _fallback_message(self._fallback_start, n_scans_seen))
+
+    def _close_fallback(self, end_index: int) -> None:
+        assert self._fallback_start is not None
+        message = _fallback_message(self._fallback_start, end_index)
+        self._fallback_start = None
+        self._warnings.append(message)
+        log.warning(message)
+
+
+def _fallback_message(start: int, end_index: int) -> str:
+    return f"scans {start}-{end_index - 1}: too few features, pose from the motion model"
