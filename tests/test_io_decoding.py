@@ -30,14 +30,16 @@ FEATURE_FILES = {"edge_sharp.pcd": "sharp", "edge_less_sharp.pcd": "less_sharp",
 def bags(tmp_path_factory):
     folder = tmp_path_factory.mktemp("bags")
     scans = [sim_scan.scan for sim_scan in sample_scans("loop")[:4]]
-    truth, top_down = folder / "truth.bag", folder / "top_down.bag"
+    truth, top_down, ringless = folder / "truth.bag", folder / "top_down.bag", folder / "ringless.bag"
     write_scan_bag(truth, scans)
     write_cloud_bag(top_down, (build_parts(s, VELODYNE_LAYOUT, 32, values={"ring": 15 - s.ring}) for s in scans))
-    return truth, top_down
+    no_ring = [field for field in VELODYNE_LAYOUT if field[0] != "ring"]
+    write_cloud_bag(ringless, (build_parts(s, no_ring, 32) for s in scans))
+    return {"truth": truth, "top_down": top_down, "ringless": ringless}
 
 
 def test_features_and_run_assign_the_same_rings(bags, tmp_path):
-    truth, top_down = bags
+    truth, top_down = bags["truth"], bags["top_down"]
     # --scans 1:3: the ring numbering is judged on scan 0, which features skips
     for bag in (truth, top_down):
         assert main(["features", str(bag), "--out", str(tmp_path / bag.stem), "--scans", "1:3"]) == 0
@@ -57,16 +59,16 @@ def test_features_and_run_assign_the_same_rings(bags, tmp_path):
 
 
 def test_info_counts_the_rings_run_assigns(bags):
-    truth, top_down = bags
+    truth, top_down = bags["truth"], bags["top_down"]
     info, truth_info = bag_info(top_down), bag_info(truth)
     assert (info.n_rings, info.sensor_model) == (truth_info.n_rings, truth_info.sensor_model) == (16, "vlp16")
 
 
-def test_scans_in_a_range_are_decoded_as_in_a_full_pass(bags):
-    _truth, top_down = bags
-    with open_scan_source(top_down) as source:
+@pytest.mark.parametrize("name", ["top_down", "ringless"])
+def test_scans_in_a_range_are_decoded_as_in_a_full_pass(bags, name):
+    with open_scan_source(bags[name]) as source:
         full = list(source)
-    with open_scan_source(top_down) as source:
+    with open_scan_source(bags[name]) as source:
         ranged = list(source.scans(2, 4))
         assert source.stats.n_scans == 2  # the scans before the range are not counted
     assert [index for index, _scan in ranged] == [2, 3]

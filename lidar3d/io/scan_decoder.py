@@ -101,10 +101,9 @@ class ScanDecoder:
         self._ring_table: np.ndarray | None = None
         self._rings_judged = False
 
-    @property
-    def rings_judged(self) -> bool:
-        """Whether the ring numbering is settled (a non-empty cloud with a ring field was decoded)."""
-        return self._rings_judged
+    def may_judge_rings(self, parts: PointCloud2Parts) -> bool:
+        """Whether decoding ``parts`` may settle the ring numbering (not settled yet, and a ring field)."""
+        return not self._rings_judged and any(f.name in RING_FIELD_NAMES for f in parts.fields)
 
     def decode(self, parts: PointCloud2Parts) -> tuple[Scan, DecodeStats]:
         """The scan of the next cloud of the stream, and what decoding dropped from it.
@@ -113,7 +112,7 @@ class ScanDecoder:
             PointCloudError: the cloud cannot be decoded (see :func:`~lidar3d.io.pointcloud2.decode_parts`).
         """
         scan, stats = self._decode(parts)
-        if not self._rings_judged and len(scan) and any(f.name in RING_FIELD_NAMES for f in parts.fields):
+        if len(scan) and self.may_judge_rings(parts):
             self._rings_judged = True
             self._ring_table = ring_table_from_elevation(scan.ring, scan.points, self.sensor)
             if self._ring_table is not None:

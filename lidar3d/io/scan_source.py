@@ -261,13 +261,13 @@ class ScanSource:
         """``(index, scan)`` of the lidar topic's messages ``start <= index < stop`` (None: to the end).
 
         Every scan is decoded as a full pass decodes it: messages before ``start`` are decoded
-        only until the ring numbering is judged, and are not counted in :attr:`stats`.
+        only while they may settle the ring numbering, and are not counted in :attr:`stats`.
         """
         decoder = self.make_decoder()
         for index, parts in enumerate(self.clouds()):
             if stop is not None and index >= stop:
                 return
-            if index < start and decoder.rings_judged:
+            if index < start and not decoder.may_judge_rings(parts):
                 continue
             try:
                 scan, stats = decoder.decode(parts)
