@@ -272,7 +272,7 @@ def test_progress_bar_on_a_terminal_keeps_bag_lines_apart_and_ends_with_one_stat
     progress.scan("a", 5, 10)
     display.update()
     progress.scan("b", 3, 30)
-    progress.finished_job(JobResult("a", JobStatus.DONE, summary={"scans": 10}))
+    progress.finished_job(JobResult("a", JobStatus.DONE, summary=example_summary(scans=10)))
     display.finished(progress.results["a"])  # the bag's line, then the bar redrawn below it
     lines = screen_lines(terminal.getvalue())
     assert lines[0].startswith("[1/2] done        a: 10 scans")
