@@ -49,9 +49,7 @@ def simulate_bags(folder: Path, n_bags: int, duration_s: float, scenario: str) -
     """``folder/bag_<k>/scans.bag`` for k < n_bags; returns the total number of scans."""
     from lidar3d.sim import simulate
 
-    return sum(
-        simulate(scenario, folder / f"bag_{k}", seed=k, duration_s=duration_s).n_scans for k in range(n_bags)
-    )
+    return sum(simulate(scenario, folder / f"bag_{k}", seed=k, duration_s=duration_s).n_scans for k in range(n_bags))
 
 
 def _cpu_counters() -> tuple[float, float, float]:
@@ -65,8 +63,11 @@ def _cpu_counters() -> tuple[float, float, float]:
         busy, steal = (user + nice + system + irq + softirq) / ticks, steal_ticks / ticks
     except OSError:
         pass
-    own = sum(getattr(resource.getrusage(who), f) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
-              for f in ("ru_utime", "ru_stime"))
+    own = sum(
+        getattr(resource.getrusage(who), f)
+        for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)
+        for f in ("ru_utime", "ru_stime")
+    )
     return busy, steal, own
 
 
@@ -78,7 +79,7 @@ def timed_batch(data: Path, out: Path, workers: int, single_thread: bool = False
     """
     saved = {name: os.environ.get(name) for name in THREAD_VARIABLES}
     if single_thread:
-        os.environ.update({name: "1" for name in THREAD_VARIABLES})
+        os.environ.update(dict.fromkeys(THREAD_VARIABLES, "1"))
     busy0, steal0, own0 = _cpu_counters()
     began = time.perf_counter()
     try:
@@ -171,9 +172,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     print("|---:|---:|---:|---:|---:|---:|")
     print(f"| {args.bags} | {n_scans} | 1 | {one:.1f} | {n_scans / one:.1f} | 1.00 |")
     print(f"| {args.bags} | {n_scans} | {args.workers} | {many:.1f} | {n_scans / many:.1f} | {one / many:.2f} |")
-    print(f"\nmedian of {args.runs} round(s); fastest rounds: {best_one:.1f} s vs {best_many:.1f} s, speed-up {best_one / best_many:.2f}")
-    print(f"outputs identical: {identical}; {os.cpu_count()} CPUs; load average (1 min) before/after each round: "
-          f"{result['load_average_1min_before_after']}")
+    print(
+        f"\nmedian of {args.runs} round(s); fastest rounds: {best_one:.1f} s vs {best_many:.1f} s, speed-up {best_one / best_many:.2f}"
+    )
+    print(
+        f"outputs identical: {identical}; {os.cpu_count()} CPUs; load average (1 min) before/after each round: "
+        f"{result['load_average_1min_before_after']}"
+    )
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")

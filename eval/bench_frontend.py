@@ -92,8 +92,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.json:
         print(json.dumps(results, indent=2))
     else:
-        print(f"front end, median ms per scan ({platform.processor() or platform.machine()}, "
-              f"{os.cpu_count()} CPUs, Python {platform.python_version()})\n")
+        print(
+            f"front end, median ms per scan ({platform.processor() or platform.machine()}, "
+            f"{os.cpu_count()} CPUs, Python {platform.python_version()})\n"
+        )
         print(markdown(results))
     return 0
 

@@ -38,9 +38,9 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
-from lidar3d.io.scan_source import ScanSource  # noqa: E402
 from lidar3d.io.bag_writer import write_cloud_bag  # noqa: E402
 from lidar3d.io.pointcloud2 import encode_scan  # noqa: E402
+from lidar3d.io.scan_source import ScanSource  # noqa: E402
 from lidar3d.records import Scan  # noqa: E402
 from lidar3d.sensors import VLP16  # noqa: E402
 
@@ -124,10 +124,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scans", type=int, default=1000, help="scans in the throughput bag (default 1000)")
     parser.add_argument("--runs", type=int, default=3, help="reads of the throughput bag; the median is reported")
-    parser.add_argument("--storage", nargs="+", default=["ros1", "ros2-sqlite3", "ros2-mcap"],
-                        choices=["ros1", "ros2-sqlite3", "ros2-mcap"])
-    parser.add_argument("--memory-scans", type=int, nargs="+", default=[1000, 3000],
-                        help="bag lengths for the peak-RSS comparison (ROS1)")
+    parser.add_argument(
+        "--storage",
+        nargs="+",
+        default=["ros1", "ros2-sqlite3", "ros2-mcap"],
+        choices=["ros1", "ros2-sqlite3", "ros2-mcap"],
+    )
+    parser.add_argument(
+        "--memory-scans",
+        type=int,
+        nargs="+",
+        default=[1000, 3000],
+        help="bag lengths for the peak-RSS comparison (ROS1)",
+    )
     parser.add_argument("--tmp", type=Path, default=None, help="folder for the temporary bags")
     parser.add_argument("--child", metavar="BAG", help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
@@ -137,8 +146,10 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     workdir = Path(tempfile.mkdtemp(prefix="lidar3d-bench-io-", dir=args.tmp))
     try:
-        print(f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
-              f"load average {os.getloadavg()[0]:.2f}")
+        print(
+            f"machine: {platform.machine()}, {os.cpu_count()} CPUs, Python {platform.python_version()}, "
+            f"load average {os.getloadavg()[0]:.2f}"
+        )
         print()
         print(f"| storage | scans | bag size | read + decode, scans/s (median of {args.runs}) | MB/s | points/s |")
         print("|---|---:|---:|---:|---:|---:|")
@@ -148,8 +159,11 @@ def main(argv: Sequence[str] | None = None) -> int:
             runs = [read_bag(path) for _ in range(args.runs)]
             seconds = statistics.median(r[2] for r in runs)
             n_scans, n_points = runs[0][0], runs[0][1]
-            print(f"| {storage} | {n_scans} | {size / 1e6:.0f} MB | {n_scans / seconds:.0f} | "
-                  f"{size / 1e6 / seconds:.0f} | {n_points / seconds / 1e6:.1f} M |", flush=True)
+            print(
+                f"| {storage} | {n_scans} | {size / 1e6:.0f} MB | {n_scans / seconds:.0f} | "
+                f"{size / 1e6 / seconds:.0f} | {n_points / seconds / 1e6:.1f} M |",
+                flush=True,
+            )
             shutil.rmtree(path) if path.is_dir() else path.unlink()
 
         print()
@@ -161,8 +175,10 @@ def main(argv: Sequence[str] | None = None) -> int:
             result = measure_rss(path)
             assert result["scans"] == n
             base, peak = result["baseline_kib"] / 1024, result["peak_kib"] / 1024
-            print(f"| {n} scans | {size / 1e6:.0f} MB | {base:.1f} MiB | {peak:.1f} MiB | {peak - base:.1f} MiB |",
-                  flush=True)
+            print(
+                f"| {n} scans | {size / 1e6:.0f} MB | {base:.1f} MiB | {peak:.1f} MiB | {peak - base:.1f} MiB |",
+                flush=True,
+            )
             path.unlink()
     finally:
         shutil.rmtree(workdir, ignore_errors=True)

@@ -12,7 +12,6 @@ every 0.2 s. Usage:
 from __future__ import annotations
 
 import argparse
-import itertools
 import subprocess
 import sys
 import tempfile
@@ -72,8 +71,13 @@ def measure(bag: Path, out: Path) -> dict:
     if process.returncode != 0:
         raise SystemExit(f"lidar3d run failed: {process.stderr.read()}")
     summary = read_summary(out / "summary.json")
-    return {"scans": summary.scans, "peak_rss_mib": round(peak / 1024, 1), "wall_s": round(wall, 1),
-            "keyframes": summary.keyframes, "map_points": summary.map_points}
+    return {
+        "scans": summary.scans,
+        "peak_rss_mib": round(peak / 1024, 1),
+        "wall_s": round(wall, 1),
+        "keyframes": summary.keyframes,
+        "map_points": summary.map_points,
+    }
 
 
 def main() -> None:
@@ -95,7 +99,9 @@ def main() -> None:
     for r in rows:
         print(f"| {r['scans']} | {r['peak_rss_mib']} | {r['keyframes']} | {r['map_points']} | {r['wall_s']} |")
     if len(rows) >= 2:
-        print(f"\nratio {rows[-1]['scans']} / {rows[0]['scans']} scans: {rows[-1]['peak_rss_mib'] / rows[0]['peak_rss_mib']:.2f}")
+        print(
+            f"\nratio {rows[-1]['scans']} / {rows[0]['scans']} scans: {rows[-1]['peak_rss_mib'] / rows[0]['peak_rss_mib']:.2f}"
+        )
 
 
 if __name__ == "__main__":

@@ -60,13 +60,28 @@ def _log(message: str) -> None:
 
 # --- running one method in its own process ------------------------------------------------------
 
+
 def run_worker(
-    method: str, case: CachedScenario, out_dir: Path, *, genz_deskew: bool, timeout_s: float | None, loop_closure: bool = True
+    method: str,
+    case: CachedScenario,
+    out_dir: Path,
+    *,
+    genz_deskew: bool,
+    timeout_s: float | None,
+    loop_closure: bool = True,
 ) -> dict:
     """Run ``suite_worker.py`` for one method; returns its ``run.json`` plus exit status and peak RSS."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    command = [sys.executable, str(HERE / "suite_worker.py"), "--method", method, "--bag", str(case.bag),
-               "--out", str(out_dir)]
+    command = [
+        sys.executable,
+        str(HERE / "suite_worker.py"),
+        "--method",
+        method,
+        "--bag",
+        str(case.bag),
+        "--out",
+        str(out_dir),
+    ]
     if method == "genz-icp" and not genz_deskew:
         command.append("--genz-no-deskew")
     if method == "lidar3d" and not loop_closure:
@@ -125,6 +140,7 @@ def _evaluate(record: dict, case: CachedScenario, out_dir: Path) -> None:
 
 # --- header facts ------------------------------------------------------------------------------
 
+
 def _cpu_model() -> str:
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -144,12 +160,19 @@ def _memory_gib() -> float:
 
 def _commit() -> str:
     try:
-        sha = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True,
-                             check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=REPO,
-                               capture_output=True, text=True, check=True).stdout.strip()
-        untracked = subprocess.run(["git", "status", "--porcelain"], cwd=REPO, capture_output=True, text=True,
-                                   check=True).stdout.strip()
+        sha = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True
+        ).stdout.strip()
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=REPO,
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        untracked = subprocess.run(
+            ["git", "status", "--porcelain"], cwd=REPO, capture_output=True, text=True, check=True
+        ).stdout.strip()
         return f"`{sha}`" + (" with uncommitted changes" if dirty or untracked else "")
     except (OSError, subprocess.CalledProcessError):
         return "unknown (not a git checkout)"
@@ -171,6 +194,7 @@ def _load() -> str:
 
 
 # --- the suite -------------------------------------------------------------------------------------
+
 
 def run_suite(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
@@ -196,8 +220,10 @@ def run_suite(args: argparse.Namespace) -> int:
             case = ensure_scenario(scenario, seed, args.duration, cache_dir=args.cache_dir, regenerate=args.regenerate)
             verb = "generated" if case.generated else "cached"
             where = case.folder.relative_to(REPO) if case.folder.is_relative_to(REPO) else case.folder
-            _log(f"{case.label}: {verb} {where} ({case.n_scans} scans, {case.path_length_m:.0f} m) "
-                 f"in {time.perf_counter() - t0:.1f} s")
+            _log(
+                f"{case.label}: {verb} {where} ({case.n_scans} scans, {case.path_length_m:.0f} m) "
+                f"in {time.perf_counter() - t0:.1f} s"
+            )
             cases.append(case)
 
     tasks = [(case, method) for case in cases for method in methods]
@@ -206,8 +232,14 @@ def run_suite(args: argparse.Namespace) -> int:
         case, method = task
         out_dir = run_dir / f"{case.scenario}_s{case.seed}" / method
         _log(f"{case.label}: {METHOD_NAMES[method]} running")
-        record = run_worker(method, case, out_dir, genz_deskew=not args.genz_no_deskew, timeout_s=args.timeout,
-                            loop_closure=not args.no_loop)
+        record = run_worker(
+            method,
+            case,
+            out_dir,
+            genz_deskew=not args.genz_no_deskew,
+            timeout_s=args.timeout,
+            loop_closure=not args.no_loop,
+        )
         if record["status"] == "ok":
             try:
                 _evaluate(record, case, out_dir)
@@ -218,14 +250,21 @@ def run_suite(args: argparse.Namespace) -> int:
             scenario=case.scenario,
             seed=case.seed,
             method=method,
-            case={"n_scans": case.n_scans, "path_length_m": case.path_length_m, "duration_s": case.sim_duration_s,
-                  "revisit_events": case.revisit_events, "folder": str(case.folder)},
+            case={
+                "n_scans": case.n_scans,
+                "path_length_m": case.path_length_m,
+                "duration_s": case.sim_duration_s,
+                "revisit_events": case.revisit_events,
+                "folder": str(case.folder),
+            },
         )
         if record["status"] == "ok":
             ate = record["scores"].get("gt", {}).get("ate_rmse_m", {}).get("3d")
-            _log(f"{case.label}: {METHOD_NAMES[method]} done: {record['run']['scans']} scans, "
-                 f"{record['run']['wall_s']:.1f} s, {record['run']['scans_per_s']:.1f} scans/s, "
-                 f"ATE {ate if ate is not None else 'n/a'} m, peak RSS {record['peak_rss_mib']:.0f} MiB")
+            _log(
+                f"{case.label}: {METHOD_NAMES[method]} done: {record['run']['scans']} scans, "
+                f"{record['run']['wall_s']:.1f} s, {record['run']['scans_per_s']:.1f} scans/s, "
+                f"ATE {ate if ate is not None else 'n/a'} m, peak RSS {record['peak_rss_mib']:.0f} MiB"
+            )
         else:
             _log(f"{case.label}: {METHOD_NAMES[method]} FAILED: {record['error']}")
         return record
@@ -243,7 +282,8 @@ def run_suite(args: argparse.Namespace) -> int:
         if row["status"] == "ok" and "reference_fraction" in row["run"]:
             fractions[row["method"]] = row["run"]["reference_fraction"]
     durations_text = (
-        "full length of each scenario" if args.duration is None
+        "full length of each scenario"
+        if args.duration is None
         else f"**only the first {args.duration:g} s of each scenario** (a shortened run, not the full suite)"
     )
     peer_versions = {METHOD_NAMES[p]: (peer_version(p) or "not installed") for p in PEERS}
@@ -270,8 +310,9 @@ def run_suite(args: argparse.Namespace) -> int:
         "skipped": skipped,
     }
     markdown = render_markdown(rows, header)
-    (run_dir / "results.json").write_text(json.dumps({"header": header, "rows": rows}, indent=1, default=str) + "\n",
-                                          encoding="utf-8")
+    (run_dir / "results.json").write_text(
+        json.dumps({"header": header, "rows": rows}, indent=1, default=str) + "\n", encoding="utf-8"
+    )
     (run_dir / "benchmarks.md").write_text(markdown, encoding="utf-8")
     if args.benchmarks is not None:
         tmp = args.benchmarks.with_name(args.benchmarks.name + ".tmp")
@@ -292,40 +333,93 @@ def _lidar3d_version() -> str:
 
 # --- command line ---------------------------------------------------------------------------------
 
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="eval/run_suite.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--scenarios", nargs="+", choices=SCENARIOS, default=list(SCENARIOS), metavar="NAME",
-                        help=f"scenarios to run (default: all of {', '.join(SCENARIOS)})")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
-                        help="simulate only the first S seconds of each scenario (quick runs); default: full length")
+    parser.add_argument(
+        "--scenarios",
+        nargs="+",
+        choices=SCENARIOS,
+        default=list(SCENARIOS),
+        metavar="NAME",
+        help=f"scenarios to run (default: all of {', '.join(SCENARIOS)})",
+    )
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="simulate only the first S seconds of each scenario (quick runs); default: full length",
+    )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="N", help="simulation seeds (default: 0)")
     parser.add_argument("--no-peers", action="store_true", help="run lidar3d only")
-    parser.add_argument("--no-loop", action="store_true",
-                        help="lidar3d with loop closure off (odometry and mapping alone, as the odometry targets are set)")
-    parser.add_argument("--peers", nargs="+", choices=list(PEERS), default=list(PEERS), metavar="PEER",
-                        help="peers to run beside lidar3d (default: kiss-icp genz-icp)")
-    parser.add_argument("--genz-no-deskew", action="store_true",
-                        help="run GenZ-ICP with its outdoor preset's deskew: false (default: deskew on)")
-    parser.add_argument("--jobs", type=int, default=1, metavar="N",
-                        help="runs at a time (default 1; more makes the timings compete for the CPU)")
+    parser.add_argument(
+        "--no-loop",
+        action="store_true",
+        help="lidar3d with loop closure off (odometry and mapping alone, as the odometry targets are set)",
+    )
+    parser.add_argument(
+        "--peers",
+        nargs="+",
+        choices=list(PEERS),
+        default=list(PEERS),
+        metavar="PEER",
+        help="peers to run beside lidar3d (default: kiss-icp genz-icp)",
+    )
+    parser.add_argument(
+        "--genz-no-deskew",
+        action="store_true",
+        help="run GenZ-ICP with its outdoor preset's deskew: false (default: deskew on)",
+    )
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        metavar="N",
+        help="runs at a time (default 1; more makes the timings compete for the CPU)",
+    )
     parser.add_argument("--timeout", type=float, default=None, metavar="S", help="give up a single run after S seconds")
     parser.add_argument("--cache-dir", type=Path, default=DEFAULT_CACHE, help="simulation cache (default: eval/cache)")
     parser.add_argument("--regenerate", action="store_true", help="regenerate the cached simulations")
     parser.add_argument("--results-dir", type=Path, default=DEFAULT_RESULTS, help="default: eval/results")
-    parser.add_argument("--benchmarks", type=Path, default=DEFAULT_BENCHMARKS,
-                        help="Markdown table to write (default: BENCHMARKS.md at the repository root)")
-    parser.add_argument("--no-benchmarks", dest="benchmarks", action="store_const", const=None,
-                        help="leave BENCHMARKS.md alone (tables still go to the results folder)")
-    parser.add_argument("--shared-cpu", action="store_true",
-                        help="state in BENCHMARKS.md that the CPU was shared with other work during the run")
-    parser.add_argument("--render", type=Path, metavar="RESULTS_JSON",
-                        help="only rewrite the tables from an earlier run's results.json (no runs)")
-    parser.add_argument("--profile", choices=SCENARIOS, metavar="SCENARIO",
-                        help="profile lidar3d on one scenario (time per stage and per function) instead of the suite")
-    parser.add_argument("--profiler", choices=("auto", "pyinstrument", "cprofile"), default="auto",
-                        help="profile mode: pyinstrument if installed (auto), or cProfile")
+    parser.add_argument(
+        "--benchmarks",
+        type=Path,
+        default=DEFAULT_BENCHMARKS,
+        help="Markdown table to write (default: BENCHMARKS.md at the repository root)",
+    )
+    parser.add_argument(
+        "--no-benchmarks",
+        dest="benchmarks",
+        action="store_const",
+        const=None,
+        help="leave BENCHMARKS.md alone (tables still go to the results folder)",
+    )
+    parser.add_argument(
+        "--shared-cpu",
+        action="store_true",
+        help="state in BENCHMARKS.md that the CPU was shared with other work during the run",
+    )
+    parser.add_argument(
+        "--render",
+        type=Path,
+        metavar="RESULTS_JSON",
+        help="only rewrite the tables from an earlier run's results.json (no runs)",
+    )
+    parser.add_argument(
+        "--profile",
+        choices=SCENARIOS,
+        metavar="SCENARIO",
+        help="profile lidar3d on one scenario (time per stage and per function) instead of the suite",
+    )
+    parser.add_argument(
+        "--profiler",
+        choices=("auto", "pyinstrument", "cprofile"),
+        default="auto",
+        help="profile mode: pyinstrument if installed (auto), or cProfile",
+    )
     parser.add_argument("--top", type=int, default=30, help="profile mode: functions to list (default 30)")
     return parser
 

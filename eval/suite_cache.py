@@ -27,7 +27,7 @@ DENSE_GT_NAME = "ground_truth_dense_tum.txt"
 DENSE_GT_PERIOD_NS = 10_000_000
 KEY_NAME = "cache_key.json"
 
-__all__ = ["CachedScenario", "DEFAULT_CACHE", "cache_folder_name", "ensure_scenario"]
+__all__ = ["DEFAULT_CACHE", "CachedScenario", "cache_folder_name", "ensure_scenario"]
 
 
 @dataclass(frozen=True, slots=True)

@@ -52,9 +52,13 @@ def end_point_drift(evaluation, estimate) -> dict:
 
 def _evaluation_dict(evaluation) -> dict:
     ate = evaluation.ate
-    distance = {f"{d.distance_m:g}m": {"translation_rmse_m": _nan_to_none(d.translation_m.rmse),
-                                        "translation_percent": _nan_to_none(d.translation_percent)}
-                for d in evaluation.distance_rpe}
+    distance = {
+        f"{d.distance_m:g}m": {
+            "translation_rmse_m": _nan_to_none(d.translation_m.rmse),
+            "translation_percent": _nan_to_none(d.translation_percent),
+        }
+        for d in evaluation.distance_rpe
+    }
     return {
         "associated": evaluation.n_associated,
         "of": evaluation.n_estimate,

@@ -128,6 +128,7 @@ def deskew_reference_fraction(preprocess: Callable[[np.ndarray, np.ndarray, np.n
 
 # --- the peers -------------------------------------------------------------------------------------
 
+
 class _Odometry(Protocol):
     """One peer behind one verb: ``register(points, times01) -> T_world_lidar``."""
 
@@ -152,8 +153,11 @@ class _KissIcp:
         self._odometry = KissICP(config)
         probe = get_preprocessor(config)
         self.reference_fraction = deskew_reference_fraction(probe.preprocess)
-        self.settings = {"version": peer_version("kiss-icp"), "config": config.model_dump(),
-                         "preset": "library defaults"}
+        self.settings = {
+            "version": peer_version("kiss-icp"),
+            "config": config.model_dump(),
+            "preset": "library defaults",
+        }
 
     def register(self, points: np.ndarray, times01: np.ndarray) -> np.ndarray:
         self._odometry.register_frame(points, times01)
@@ -179,8 +183,12 @@ class _GenzIcp:
             return np.asarray(native._preprocess(genz_icp_pybind._Vector3dVector(points), list(times), motion))
 
         self.reference_fraction = deskew_reference_fraction(preprocess)
-        self.settings = {"version": peer_version("genz-icp"), "config": config.model_dump(),
-                         "preset": preset, "deskew": bool(deskew)}
+        self.settings = {
+            "version": peer_version("genz-icp"),
+            "config": config.model_dump(),
+            "preset": preset,
+            "deskew": bool(deskew),
+        }
 
     def register(self, points: np.ndarray, times01: np.ndarray) -> np.ndarray:
         self._odometry.register_frame(points, times01)

@@ -22,7 +22,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-
 from suite_cache import ensure_scenario
 
 __all__ = ["profile_scenario", "stage_table"]
@@ -43,8 +42,10 @@ def stage_table(timings_ms: dict[str, np.ndarray], wall_s: float, n_scans: int) 
         lines.append(f"{name:<16}{mean:>10.2f}{median:>11.2f}{p95:>10.2f}{share:>7.1f}%")
     per_scan = 1e3 * wall_s / n_scans if n_scans else float("nan")
     lines.append(f"{'sum of stages':<16}{total / max(n_scans, 1):>10.2f}   (bag reading is not a stage: wall - sum)")
-    lines.append(f"{'wall':<16}{per_scan:>10.2f}   ({n_scans} scans in {wall_s:.1f} s, "
-                 f"{n_scans / wall_s if wall_s else 0:.1f} scans/s)")
+    lines.append(
+        f"{'wall':<16}{per_scan:>10.2f}   ({n_scans} scans in {wall_s:.1f} s, "
+        f"{n_scans / wall_s if wall_s else 0:.1f} scans/s)"
+    )
     return "\n".join(lines)
 
 
@@ -64,8 +65,11 @@ def profile_scenario(args: argparse.Namespace) -> int:
     stamp = dt.datetime.now(dt.timezone.utc).strftime("%Y%m%dT%H%M%SZ")
     out_dir = Path(args.results_dir) / f"profile_{case.scenario}_s{seed}_{stamp}"
     out_dir.mkdir(parents=True, exist_ok=True)
-    print(f"profiling lidar3d on {case.label}: {case.n_scans} scans, {case.path_length_m:.0f} m "
-          f"({'first ' + format(args.duration, 'g') + ' s' if args.duration else 'full length'})", flush=True)
+    print(
+        f"profiling lidar3d on {case.label}: {case.n_scans} scans, {case.path_length_m:.0f} m "
+        f"({'first ' + format(args.duration, 'g') + ' s' if args.duration else 'full length'})",
+        flush=True,
+    )
 
     use_pyinstrument = _use_pyinstrument(args.profiler)
     t0 = time.perf_counter()
@@ -78,15 +82,18 @@ def profile_scenario(args: argparse.Namespace) -> int:
         outcome = run_bag(case.bag, out_dir / "run")
         profiler.stop()
         session = profiler.last_session
-        tree = profiler.output(ConsoleRenderer(unicode=True, color=False, show_all=False,
-                                               processor_options={"filter_threshold": 0.01}))
+        tree = profiler.output(
+            ConsoleRenderer(unicode=True, color=False, show_all=False, processor_options={"filter_threshold": 0.01})
+        )
         flat = profiler.output(ConsoleRenderer(unicode=True, color=False, flat=True, flat_time="self"))
         flat = "\n".join(flat.splitlines()[: args.top + 8])
         (out_dir / "profile.html").write_text(profiler.output_html(), encoding="utf-8")
         (out_dir / "profile.txt").write_text(tree + "\n\n" + flat + "\n", encoding="utf-8")
-        profiler_name = (f"pyinstrument, sampled every 1 ms: {session.sample_count} samples, CPU time "
-                         f"{session.cpu_time:.1f} s of {session.duration:.1f} s wall; the rest waited for a CPU "
-                         "or for I/O")
+        profiler_name = (
+            f"pyinstrument, sampled every 1 ms: {session.sample_count} samples, CPU time "
+            f"{session.cpu_time:.1f} s of {session.duration:.1f} s wall; the rest waited for a CPU "
+            "or for I/O"
+        )
         function_text = "call tree (frames over 1 % of the time):\n" + tree + "\nby own time:\n" + flat
     else:
         import cProfile

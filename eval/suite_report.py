@@ -63,8 +63,9 @@ def wall_ratio(ours: dict | None, peer: dict | None) -> float | None:
 
 
 def _triple(methods: Sequence[str], per_method: dict[str, dict], fmt) -> str:
-    return " / ".join(fmt(per_method.get(m)) if _ok(per_method.get(m)) else ("failed" if per_method.get(m) else DASH)
-                      for m in methods)
+    return " / ".join(
+        fmt(per_method.get(m)) if _ok(per_method.get(m)) else ("failed" if per_method.get(m) else DASH) for m in methods
+    )
 
 
 def _drift_text(row: dict) -> str:
@@ -94,8 +95,15 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
 
     # --- summary ---------------------------------------------------------------------------
     out += ["## Summary: lidar3d beside the peers", ""]
-    cols = ["scenario", "length m", "scans", f"ATE 3-D m ({names})", f"RPE % ({names})",
-            f"end drift m ({names})", f"scans/s ({names})"]
+    cols = [
+        "scenario",
+        "length m",
+        "scans",
+        f"ATE 3-D m ({names})",
+        f"RPE % ({names})",
+        f"end drift m ({names})",
+        f"scans/s ({names})",
+    ]
     cols += [f"wall time lidar3d/{METHOD_NAMES[p]}" for p in peers]
     out += [_row(cols), _row(["---"] * len(cols))]
     for case in cases:
@@ -118,8 +126,19 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
 
     # --- accuracy against ground truth ----------------------------------------------------
     out += ["## Accuracy against ground truth (SE(3)-aligned ATE RMSE; KITTI RPE over 100–800 m)", ""]
-    cols = ["scenario", "method", "ATE 3-D m", "ATE horiz. m", "ATE vert. m", "ATE rot. deg", "RPE %",
-            "RPE deg/100 m", "RPE 10 m %", "end drift m (% of length)", "loop closures"]
+    cols = [
+        "scenario",
+        "method",
+        "ATE 3-D m",
+        "ATE horiz. m",
+        "ATE vert. m",
+        "ATE rot. deg",
+        "RPE %",
+        "RPE deg/100 m",
+        "RPE 10 m %",
+        "end drift m (% of length)",
+        "loop closures",
+    ]
     out += [_row(cols), _row(["---"] * len(cols))]
     for case in cases:
         for method in methods:
@@ -132,15 +151,23 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                 out.append(_row([label, METHOD_NAMES[method], failure] + [""] * (len(cols) - 3)))
                 continue
             gt = _get(row, "scores", "gt") or {}
-            out.append(_row([
-                label, METHOD_NAMES[method],
-                _num(_get(gt, "ate_rmse_m", "3d"), 3), _num(_get(gt, "ate_rmse_m", "horizontal"), 3),
-                _num(_get(gt, "ate_rmse_m", "vertical"), 3), _num(_get(gt, "ate_rotation_rmse_deg"), 2),
-                _num(_get(gt, "rpe_kitti", "translation_percent"), 2),
-                _num(_get(gt, "rpe_kitti", "rotation_deg_per_100m"), 2),
-                _num(_get(gt, "rpe_distance", "10m", "translation_percent"), 2),
-                _drift_text(row), _loops_text(row),
-            ]))
+            out.append(
+                _row(
+                    [
+                        label,
+                        METHOD_NAMES[method],
+                        _num(_get(gt, "ate_rmse_m", "3d"), 3),
+                        _num(_get(gt, "ate_rmse_m", "horizontal"), 3),
+                        _num(_get(gt, "ate_rmse_m", "vertical"), 3),
+                        _num(_get(gt, "ate_rotation_rmse_deg"), 2),
+                        _num(_get(gt, "rpe_kitti", "translation_percent"), 2),
+                        _num(_get(gt, "rpe_kitti", "rotation_deg_per_100m"), 2),
+                        _num(_get(gt, "rpe_distance", "10m", "translation_percent"), 2),
+                        _drift_text(row),
+                        _loops_text(row),
+                    ]
+                )
+            )
     out.append("")
 
     # --- accuracy against the SPAN log -----------------------------------------------------
@@ -154,15 +181,33 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                 continue
             span = _get(row, "scores", "span") or {}
             if "error" in span:
-                out.append(_row([_case_label(row, multi_seed), METHOD_NAMES[method], f"error: {span['error'][:80]}",
-                                 "", "", "", ""]))
+                out.append(
+                    _row(
+                        [
+                            _case_label(row, multi_seed),
+                            METHOD_NAMES[method],
+                            f"error: {span['error'][:80]}",
+                            "",
+                            "",
+                            "",
+                            "",
+                        ]
+                    )
+                )
                 continue
-            out.append(_row([
-                _case_label(row, multi_seed), METHOD_NAMES[method],
-                f"{span.get('associated', 0)} of {span.get('of', 0)}",
-                _num(_get(span, "ate_rmse_m", "3d"), 3), _num(_get(span, "ate_rmse_m", "horizontal"), 3),
-                _num(_get(span, "ate_rmse_m", "vertical"), 3), _num(_get(span, "rpe_kitti", "translation_percent"), 2),
-            ]))
+            out.append(
+                _row(
+                    [
+                        _case_label(row, multi_seed),
+                        METHOD_NAMES[method],
+                        f"{span.get('associated', 0)} of {span.get('of', 0)}",
+                        _num(_get(span, "ate_rmse_m", "3d"), 3),
+                        _num(_get(span, "ate_rmse_m", "horizontal"), 3),
+                        _num(_get(span, "ate_rmse_m", "vertical"), 3),
+                        _num(_get(span, "rpe_kitti", "translation_percent"), 2),
+                    ]
+                )
+            )
     out.append("")
 
     # --- speed and memory -------------------------------------------------------------------
@@ -177,19 +222,27 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                 continue
             wall, n = _get(row, "run", "wall_s"), _get(row, "run", "scans")
             ratio = wall_ratio(ours, row) if method != "lidar3d" else None
-            out.append(_row([
-                _case_label(row, multi_seed), METHOD_NAMES[method], str(n), _num(wall, 1),
-                _num(_get(row, "run", "scans_per_s"), 1), _num(1e3 * wall / n if wall and n else None, 1),
-                (f"{ratio:.2f}×" if ratio is not None else (DASH if method != "lidar3d" else "1.00×")),
-                _num(row.get("peak_rss_mib"), 0),
-            ]))
+            out.append(
+                _row(
+                    [
+                        _case_label(row, multi_seed),
+                        METHOD_NAMES[method],
+                        str(n),
+                        _num(wall, 1),
+                        _num(_get(row, "run", "scans_per_s"), 1),
+                        _num(1e3 * wall / n if wall and n else None, 1),
+                        (f"{ratio:.2f}×" if ratio is not None else (DASH if method != "lidar3d" else "1.00×")),
+                        _num(row.get("peak_rss_mib"), 0),
+                    ]
+                )
+            )
     out.append("")
 
     # --- per stage ----------------------------------------------------------------------------
     stage_names: list[str] = []
     for row in rows:
         if row["method"] == "lidar3d" and _ok(row):
-            for name in (_get(row, "run", "stage_ms") or {}):
+            for name in _get(row, "run", "stage_ms") or {}:
                 if name not in stage_names:
                     stage_names.append(name)
     if stage_names:
@@ -204,8 +257,16 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
             means = [_get(stages, name, "mean") for name in stage_names]
             total = sum(v for v in means if v is not None)
             wall, n = _get(row, "run", "wall_s"), _get(row, "run", "scans")
-            out.append(_row([_case_label(row, multi_seed), *(_num(v, 1) for v in means), _num(total, 1),
-                             _num(1e3 * wall / n if wall and n else None, 1)]))
+            out.append(
+                _row(
+                    [
+                        _case_label(row, multi_seed),
+                        *(_num(v, 1) for v in means),
+                        _num(total, 1),
+                        _num(1e3 * wall / n if wall and n else None, 1),
+                    ]
+                )
+            )
         out.append("")
     if peers:
         out += ["Peers, mean ms/scan: reading + decoding the scan (same reader as lidar3d) / `register_frame`:", ""]
@@ -218,8 +279,10 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                 row = grid[case].get(p)
                 if _ok(row):
                     label = label or _case_label(row, multi_seed)
-                    cells.append(f"{_num(_get(row, 'run', 'stage_ms', 'read', 'mean'), 1)} / "
-                                 f"{_num(_get(row, 'run', 'stage_ms', 'register', 'mean'), 1)}")
+                    cells.append(
+                        f"{_num(_get(row, 'run', 'stage_ms', 'read', 'mean'), 1)} / "
+                        f"{_num(_get(row, 'run', 'stage_ms', 'register', 'mean'), 1)}"
+                    )
                 else:
                     cells.append(DASH)
             if label:
@@ -235,15 +298,18 @@ def _row(cells: Sequence[str]) -> str:
 
 def header_lines(header: dict) -> list[str]:
     lines = [
-        f"Produced by `{header['command']}` on {header['date_utc']} "
-        f"in {header['elapsed_min']:.1f} min.",
+        f"Produced by `{header['command']}` on {header['date_utc']} in {header['elapsed_min']:.1f} min.",
         "",
         f"* Machine: {header['cpu']}, {header['n_cpus']} logical CPUs, {header['memory_gib']:.0f} GiB; "
         f"load average {header['load_start']} at start, {header['load_end']} at the end"
-        + (" — **the CPU was shared with other work while this ran; timings are indicative**."
-           if header.get("shared_cpu") else "."),
+        + (
+            " — **the CPU was shared with other work while this ran; timings are indicative**."
+            if header.get("shared_cpu")
+            else "."
+        ),
         f"* lidar3d {header['lidar3d_version']} at commit {header['commit']}; Python {header['python']}; "
-        + "; ".join(f"{k} {v}" for k, v in header["peer_versions"].items()) + ".",
+        + "; ".join(f"{k} {v}" for k, v in header["peer_versions"].items())
+        + ".",
         f"* Data: simulated VLP-16 drives (`lidar3d.sim`), seed(s) {', '.join(map(str, header['seeds']))}; "
         f"{header['durations_text']}.",
         f"* Runs: one process per (scenario, method), {header['jobs']} at a time; peak RSS is that process's "

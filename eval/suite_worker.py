@@ -94,9 +94,10 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool 
 
 
 def run_peer_method(method: str, bag: Path, out: Path, max_scans: int | None, genz_deskew: bool) -> dict:
+    from suite_peers import run_peer
+
     from lidar3d.io.trajectory_io import write_tum
     from lidar3d.records import Trajectory
-    from suite_peers import run_peer
 
     run = run_peer(method, bag, max_scans=max_scans, genz_deskew=genz_deskew)
     write_tum(out / "trajectory_tum.txt", Trajectory(run.stamps_ns, run.T_world_lidar))

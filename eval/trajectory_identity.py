@@ -33,10 +33,11 @@ RECORDS = ("trajectory", "odometry", "keyframes")
 
 
 def _run(args: argparse.Namespace) -> int:
+    from suite_cache import DEFAULT_CACHE, ensure_scenario
+
     import lidar3d
     from lidar3d.config import Config
     from lidar3d.run import run_bag
-    from suite_cache import DEFAULT_CACHE, ensure_scenario
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -89,7 +90,9 @@ def _compare(args: argparse.Namespace) -> int:
             worst = max(worst, dpos, drot)
             ok = dpos <= args.tolerance_m and drot <= args.tolerance_m
             failed |= not ok
-            print(f"{name:>6} {record:<10} {len(Ta):5d} poses  max |dp| {dpos:.3e} m  max |dR| {drot:.3e} rad  {'ok' if ok else 'DIFFERENT'}")
+            print(
+                f"{name:>6} {record:<10} {len(Ta):5d} poses  max |dp| {dpos:.3e} m  max |dR| {drot:.3e} rad  {'ok' if ok else 'DIFFERENT'}"
+            )
     print(f"largest difference {worst:.3e}; {'FAILED' if failed else 'identical within'} {args.tolerance_m:g}")
     return 1 if failed else 0
 

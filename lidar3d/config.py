@@ -25,17 +25,17 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 
 __all__ = [
     "Config",
-    "SensorConfig",
-    "InputConfig",
-    "SegmentationConfig",
     "FeatureConfig",
     "GnssConfig",
-    "OdometryConfig",
-    "MappingConfig",
+    "InputConfig",
     "LoopConfig",
-    "load_config",
+    "MappingConfig",
+    "OdometryConfig",
+    "SegmentationConfig",
+    "SensorConfig",
     "config_from_dict",
     "config_to_toml",
+    "load_config",
 ]
 
 

@@ -6,14 +6,14 @@ exception keeps its traceback because it is a bug.
 """
 
 __all__ = [
-    "Lidar3dError",
     "BagError",
     "ConfigError",
-    "PointCloudError",
     "GnssError",
+    "Lidar3dError",
+    "OutputError",
+    "PointCloudError",
     "RegistrationError",
     "SimulationError",
-    "OutputError",
     "SummaryError",
 ]
 

@@ -40,7 +40,7 @@ from lidar3d.records import Scan, Trajectory
 from lidar3d.run_statistics import RunStatistics
 from lidar3d.timing import StageClock
 
-__all__ = ["ScanEstimate", "SlamResult", "SlamPipeline", "run_slam", "STAGES"]
+__all__ = ["STAGES", "ScanEstimate", "SlamPipeline", "SlamResult", "run_slam"]
 
 log = logging.getLogger(__name__)
 
@@ -177,7 +177,9 @@ class SlamPipeline:
                 # it properly once its motion is known.
                 self._add_keyframe(index, stamp_ns, T_world_lidar, sweep.deskewed(track.deskew_twist))
         self.stats.add_timings(clock.ms)
-        estimate = ScanEstimate(index, stamp_ns, T_world_lidar, track.T_world_odom, is_keyframe, track.motion_model_only)
+        estimate = ScanEstimate(
+            index, stamp_ns, T_world_lidar, track.T_world_odom, is_keyframe, track.motion_model_only
+        )
         self._estimates.append(estimate)
         self.stats.count("scans")
         return estimate
@@ -207,7 +209,9 @@ class SlamPipeline:
         return SlamResult(
             trajectory=self._trajectory(),
             odometry=Trajectory(np.array([e.stamp_ns for e in self._estimates], dtype=np.int64), odometry),
-            keyframes=Trajectory(np.array([kf.stamp_ns for kf in keyframes], dtype=np.int64), self.submap.poses.reshape(-1, 4, 4)),
+            keyframes=Trajectory(
+                np.array([kf.stamp_ns for kf in keyframes], dtype=np.int64), self.submap.poses.reshape(-1, 4, 4)
+            ),
             keyframe_scan_indices=np.array([kf.scan_index for kf in keyframes], dtype=np.int64),
             map_points=map_points,
             map_intensity=map_intensity,

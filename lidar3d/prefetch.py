@@ -22,7 +22,7 @@ from lidar3d.errors import Lidar3dError
 from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.io.scan_source import ReadStats, open_scan_source
 
-__all__ = ["PreparedScanStream", "InlineScanStream", "open_prepared_scans"]
+__all__ = ["InlineScanStream", "PreparedScanStream", "open_prepared_scans"]
 
 _POLL_S = 0.5
 
@@ -48,7 +48,7 @@ def _produce(paths: list[str], config: Config, start: int, stop: int | None, out
             for prepared, read_ms in _prepared(source, config, start, stop):
                 out.put(("scan", prepared, read_ms))
         out.put(("end", source.stats))
-    except BaseException as err:  # noqa: BLE001 - every failure is handed to the parent
+    except BaseException as err:
         out.put(("error", err))
 
 
@@ -99,7 +99,7 @@ class PreparedScanStream:
                 raise message[1]
             return message
 
-    def __enter__(self) -> "PreparedScanStream":
+    def __enter__(self) -> PreparedScanStream:
         self._process.start()
         try:
             _, self.topic, n_scans = self._get()
@@ -133,7 +133,9 @@ class PreparedScanStream:
 class InlineScanStream:
     """The same interface as :class:`PreparedScanStream`, all in this process."""
 
-    def __init__(self, paths: Sequence[str | Path], config: Config, *, start: int = 0, max_scans: int | None = None) -> None:
+    def __init__(
+        self, paths: Sequence[str | Path], config: Config, *, start: int = 0, max_scans: int | None = None
+    ) -> None:
         self.config = config
         self.start = start
         self.stop = None if max_scans is None else start + max_scans
@@ -142,7 +144,7 @@ class InlineScanStream:
         self.total = 0
         self.stats = ReadStats()
 
-    def __enter__(self) -> "InlineScanStream":
+    def __enter__(self) -> InlineScanStream:
         self._source.__enter__()
         self.topic = self._source.topic
         self.total = max(0, len(self._source) - self.start)

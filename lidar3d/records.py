@@ -64,7 +64,7 @@ class Scan:
         """(N,) float64 distance of each point from the sensor origin."""
         return np.linalg.norm(self.points, axis=1)
 
-    def select(self, mask: np.ndarray) -> "Scan":
+    def select(self, mask: np.ndarray) -> Scan:
         """A new scan holding only the points where ``mask`` (bool or index array) selects."""
         return Scan(
             stamp_ns=self.stamp_ns,

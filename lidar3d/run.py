@@ -31,11 +31,11 @@ from lidar3d import __version__
 from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import Lidar3dError
 from lidar3d.io.atomic import write_text_atomic
-from lidar3d.io.scan_source import open_scan_source
-from lidar3d.prefetch import open_prepared_scans
 from lidar3d.io.pcd import write_pcd
+from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import write_kitti, write_tum
 from lidar3d.pipeline import SlamPipeline, SlamResult
+from lidar3d.prefetch import open_prepared_scans
 from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
 
 __all__ = ["RunOutcome", "run_bag", "write_outputs"]

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["SensorModel", "SENSOR_MODELS", "sensor_model", "guess_sensor_model"]
+__all__ = ["SENSOR_MODELS", "SensorModel", "guess_sensor_model", "sensor_model"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -89,10 +89,38 @@ HDL32E = SensorModel(
 VLP32C = SensorModel(
     name="vlp32c",
     elevation_deg=(
-        -25.0, -15.639, -11.31, -8.843, -7.254, -6.148, -5.333, -4.667,
-        -4.0, -3.667, -3.333, -3.0, -2.667, -2.333, -2.0, -1.667,
-        -1.333, -1.0, -0.667, -0.333, 0.0, 0.333, 0.667, 1.0,
-        1.333, 1.667, 2.333, 3.333, 4.667, 7.0, 10.333, 15.0,
+        -25.0,
+        -15.639,
+        -11.31,
+        -8.843,
+        -7.254,
+        -6.148,
+        -5.333,
+        -4.667,
+        -4.0,
+        -3.667,
+        -3.333,
+        -3.0,
+        -2.667,
+        -2.333,
+        -2.0,
+        -1.667,
+        -1.333,
+        -1.0,
+        -0.667,
+        -0.333,
+        0.0,
+        0.333,
+        0.667,
+        1.0,
+        1.333,
+        1.667,
+        2.333,
+        3.333,
+        4.667,
+        7.0,
+        10.333,
+        15.0,
     ),
     n_columns=1800,
     rotation_hz=10.0,

@@ -13,12 +13,12 @@ from lidar3d.sim import ObjectClass, SimulatedScan, Simulation
 DURATION_S = 60.0
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def simulation(scenario: str, sensor: str = "vlp16") -> Simulation:
     return Simulation(scenario, seed=0, duration_s=DURATION_S, sensor=sensor)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def sample_scans(scenario: str, sensor: str = "vlp16", count: int = 12) -> tuple[SimulatedScan, ...]:
     """``count`` scans spread evenly over the first minute of the drive."""
     sim = simulation(scenario, sensor)
@@ -47,7 +47,7 @@ def points_in_world(sim: Simulation, sim_scan: SimulatedScan, index: np.ndarray)
     return np.einsum("nij,nj->ni", T_world_lidar[:, :3, :3], scan.points[index]) + T_world_lidar[:, :3, 3]
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def vertical_edge_tree(scenario: str, sensor: str = "vlp16") -> cKDTree:
     """k-d tree over the (x, y) of the world's vertical mesh edges (building and car corners)."""
     world = simulation(scenario, sensor).world

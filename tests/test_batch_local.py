@@ -42,7 +42,9 @@ def simulate_bags(root: Path, names=GOOD, *, with_corrupt: bool = True, duration
     spans.mkdir(parents=True)
     for index, name in enumerate(names):
         duration_s = (durations_s or {}).get(name, DURATION_S)
-        sim = Simulation("loop", seed=index, duration_s=duration_s, start_time_ns=DEFAULT_START_TIME_NS + index * HOUR_NS)
+        sim = Simulation(
+            "loop", seed=index, duration_s=duration_s, start_time_ns=DEFAULT_START_TIME_NS + index * HOUR_NS
+        )
         outputs = write_simulation(sim, data / name, bag_format="ros2" if name == "c" else "ros1")
         shutil.copy(outputs.span_log, spans / f"span_{name}.log")
     if with_corrupt:
@@ -113,9 +115,18 @@ def _chromium() -> str | None:
 
 def _dump_dom(browser: str, url: str, profile: Path) -> str:
     command = [
-        browser, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-        "--disable-background-networking", "--disable-component-update", "--disable-sync",
-        f"--user-data-dir={profile}", "--dump-dom", url,
+        browser,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--disable-quic",
+        "--no-first-run",
+        "--disable-background-networking",
+        "--disable-component-update",
+        "--disable-sync",
+        f"--user-data-dir={profile}",
+        "--dump-dom",
+        url,
     ]
     done = subprocess.run(command, capture_output=True, text=True, timeout=60)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -134,7 +145,9 @@ def test_report_renders_and_sorts_in_chromium(first_run, tmp_path):
     ates = [expected[name]["ate_rmse_m"] for name in order]
     numbers = [a for a in ates if a is not None]
     assert numbers == sorted(numbers, reverse=True) and ates[-1] is None  # bags without ATE last
-    assert re.search(r'data-key="ate_rmse_m"[^>]*aria-sort="descending"|aria-sort="descending"[^>]*data-key="ate_rmse_m"', dom)
+    assert re.search(
+        r'data-key="ate_rmse_m"[^>]*aria-sort="descending"|aria-sort="descending"[^>]*data-key="ate_rmse_m"', dom
+    )
 
     dom = _dump_dom(_chromium(), url + "#sort=name:asc", tmp_path / "profile")
     order = re.findall(r'<tr class="bag" data-name="([^"]+)"', dom)
@@ -145,8 +158,18 @@ def test_rerun_skips_finished_bags_and_force_redoes_them(first_run, drives):
     out = first_run.out_dir
     stamps = {n: _mtime(out / NAMES[n] / JOB_FILE) for n in GOOD}
     trajectories = {n: (out / NAMES[n] / "trajectory_tum.txt").read_bytes() for n in GOOD}
-    args = ["batch", str(drives), "--out", str(out), "--span-dir", str(drives.parent / "spans"),
-            "--extrinsics", str(drives / "a" / "extrinsics.toml"), "--workers", "2"]
+    args = [
+        "batch",
+        str(drives),
+        "--out",
+        str(out),
+        "--span-dir",
+        str(drives.parent / "spans"),
+        "--extrinsics",
+        str(drives / "a" / "extrinsics.toml"),
+        "--workers",
+        "2",
+    ]
 
     assert main(args) == 1  # the corrupt bag still fails
     rows = _rows(out)

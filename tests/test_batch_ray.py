@@ -6,10 +6,10 @@ import dataclasses
 import json
 
 import pytest
+from test_batch_local import OUTPUTS, simulate_bags
 
 from lidar3d.batch import run_batch
 from lidar3d.summary import RunSummary, read_summary
-from test_batch_local import OUTPUTS, simulate_bags
 
 ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'lidar3d[ray]')")
 

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import pytest
 from terminal import Terminal, screen_lines
+from test_summary import example_summary
 
 from lidar3d.batch import JobResult, JobStatus, content_fingerprint, discover_bags, job_fingerprint, run_batch
 from lidar3d.batch import span_match as span_match_module
@@ -26,7 +27,6 @@ from lidar3d.batch.report import ROW_FIELDS, bag_row, write_report
 from lidar3d.batch.span_match import TimeRangeCache, match_span_logs, resolve_extrinsics
 from lidar3d.cli.main import main
 from lidar3d.errors import BagError, ConfigError, OutputError
-from test_summary import example_summary
 
 S = 10**9
 
@@ -62,7 +62,9 @@ def test_folders_are_searched_for_ros1_ros2_and_storage_files(tree):
 
 
 def test_globs_files_and_ros2_folders_without_duplicates(tree):
-    bags = discover_bags([str(tree / "*" / "drive.bag"), tree / "x" / "drive.bag", tree / "r2", tree / "r2" / "r2_0.db3"])
+    bags = discover_bags(
+        [str(tree / "*" / "drive.bag"), tree / "x" / "drive.bag", tree / "r2", tree / "r2" / "r2_0.db3"]
+    )
     assert [b.name for b in bags] == ["x__drive", "y__drive", "r2"]
     assert discover_bags([tree / "x" / "drive.bag"])[0].name == "drive"  # no collision, short name
 
@@ -223,17 +225,26 @@ def test_report_files_escape_and_keep_every_field(tmp_path):
     rows = [
         bag_row(name="a<script>", bag=Path("/b/a.bag"), status="failed", batch_dir=tmp_path, error="bad & <worse>"),
         bag_row(
-            name="b", bag=Path("/b/b.bag"), status="done", batch_dir=tmp_path,
+            name="b",
+            bag=Path("/b/b.bag"),
+            status="done",
+            batch_dir=tmp_path,
             summary=example_summary(scans=20, length_m=5.5, runtime_s=2.0, scans_per_s=10.0, loop_closures=2),
-            eval_report={"rpe_kitti": {"translation_percent": 1.5},
-                         "rpe_distance": [{"distance_m": 10.0, "translation_m": {"rmse": 0.1}}]},
+            eval_report={
+                "rpe_kitti": {"translation_percent": 1.5},
+                "rpe_distance": [{"distance_m": 10.0, "translation_m": {"rmse": 0.1}}],
+            },
             rpe_distance_m=10.0,
         ),
     ]
     assert rows[1]["loop_closures"] == 2 and rows[1]["ate_rmse_m"] == 0.25
     assert rows[1]["rpe_rmse_m"] == 0.1 and rows[1]["rpe_kitti_percent"] == 1.5
-    meta = {"out_dir": str(tmp_path), "engine": "local", "rpe_distance_m": 10.0,
-            "totals": {"bags": 2, "by_status": {"done": 1, "failed": 1}, "scans": 20, "length_m": 5.5}}
+    meta = {
+        "out_dir": str(tmp_path),
+        "engine": "local",
+        "rpe_distance_m": 10.0,
+        "totals": {"bags": 2, "by_status": {"done": 1, "failed": 1}, "scans": 20, "length_m": 5.5},
+    }
     paths = write_report(tmp_path, rows, meta)
     page = paths.html.read_text()
     assert "a<script>" not in page and "a&lt;script&gt;" in page and "bad &amp; &lt;worse&gt;" in page
@@ -259,7 +270,9 @@ def test_progress_counts_rates_and_time_left():
     display.close()
     assert "FAILED      b: x" in stream.getvalue()
     assert "\r" not in stream.getvalue()  # off a terminal: the lines only, no bar
-    assert re.fullmatch(r"batch: 3/3 bags \(1 up to date, 1 failed\), [\d.]+ scans/s", stream.getvalue().splitlines()[-1])
+    assert re.fullmatch(
+        r"batch: 3/3 bags \(1 up to date, 1 failed\), [\d.]+ scans/s", stream.getvalue().splitlines()[-1]
+    )
     assert [format_duration(s) for s in (42, 200, 7500)] == ["42 s", "3 min 20 s", "2 h 05 min"]
 
 
@@ -349,6 +362,9 @@ def test_a_worker_that_dies_fails_only_its_own_bag(tmp_path):
     sink = ListSink()
     assert run_local(jobs, sink, workers=2, job_function=crash_or_succeed) is False
     assert {n: r.status for n, r in sink.results.items()} == {
-        "one": JobStatus.DONE, "crash": JobStatus.FAILED, "two": JobStatus.DONE, "three": JobStatus.DONE
+        "one": JobStatus.DONE,
+        "crash": JobStatus.FAILED,
+        "two": JobStatus.DONE,
+        "three": JobStatus.DONE,
     }
     assert "worker process died" in sink.results["crash"].error

@@ -65,7 +65,11 @@ def test_cli_config_bad_file_one_line(tmp_path, capsys):
 def test_sensor_overrides_resolve_and_round_trip(tmp_path):
     preset = Config().sensor.resolved_model
     assert (preset.name, preset.n_rings, preset.n_columns, preset.rotation_hz, preset.max_range_m) == (
-        "vlp16", 16, 1800, 10.0, 100.0,
+        "vlp16",
+        16,
+        1800,
+        10.0,
+        100.0,
     )
     path = tmp_path / "c.toml"
     path.write_text("[sensor]\nmax_range_override_m = 80\nn_columns_override = 900\n")

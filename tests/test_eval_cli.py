@@ -59,8 +59,10 @@ def _inspvax_lines(t, T_enu_imu, status="INS_SOLUTION_GOOD"):
 
 def _bestpos_line(seconds):
     header = f"BESTPOSA,COM1,0,60.5,FINESTEERING,{WEEK},{seconds:.3f},02000020,b1f6,16809"
-    body = (f"SOL_COMPUTED,NARROW_INT,{ORIGIN.latitude_deg:.11f},{ORIGIN.longitude_deg:.11f},519.6000,47.4000,"
-            'WGS84,0.0100,0.0100,0.0200,"0",1.000,0.000,20,18,18,18,00,01,30,33')
+    body = (
+        f"SOL_COMPUTED,NARROW_INT,{ORIGIN.latitude_deg:.11f},{ORIGIN.longitude_deg:.11f},519.6000,47.4000,"
+        'WGS84,0.0100,0.0100,0.0200,"0",1.000,0.000,20,18,18,18,00,01,30,33'
+    )
     return _ascii("#", header, body)
 
 
@@ -92,8 +94,14 @@ def scene(tmp_path_factory):
     write_kitti(root / "estimate.kitti", estimate)
     (root / "extrinsic.yaml").write_text(EXTRINSIC_YAML)
     enu_estimate = Trajectory(estimate.stamps_ns, T_enu_lidar)
-    return {"root": root, "log": log, "estimate": estimate, "enu_estimate": enu_estimate, "t": t,
-            "T_enu_imu": T_enu_imu}
+    return {
+        "root": root,
+        "log": log,
+        "estimate": estimate,
+        "enu_estimate": enu_estimate,
+        "t": t,
+        "T_enu_imu": T_enu_imu,
+    }
 
 
 def _run(argv, capsys):
@@ -105,12 +113,29 @@ def _run(argv, capsys):
 def test_eval_cli_writes_report_at_noise_level(scene, capsys):
     out = scene["root"] / "out_se3"
     code, stdout, _err = _run(
-        ["eval", str(scene["root"] / "estimate_tum.txt"), "--span", str(scene["log"]),
-         "--extrinsics", str(scene["root"] / "extrinsic.yaml"), "--out", str(out)], capsys)
+        [
+            "eval",
+            str(scene["root"] / "estimate_tum.txt"),
+            "--span",
+            str(scene["log"]),
+            "--extrinsics",
+            str(scene["root"] / "extrinsic.yaml"),
+            "--out",
+            str(out),
+        ],
+        capsys,
+    )
     assert code == 0
     assert "3-D [m]" in stdout and "KITTI RPE" in stdout and "1400 INSPVAX solutions" in stdout
-    for name in ("report.json", "errors.csv", "top_view.png", "error_over_time.png", "height_profile.png",
-                 "reference_lidar_tum.txt", "estimate_aligned_tum.txt"):
+    for name in (
+        "report.json",
+        "errors.csv",
+        "top_view.png",
+        "error_over_time.png",
+        "height_profile.png",
+        "reference_lidar_tum.txt",
+        "estimate_aligned_tum.txt",
+    ):
         assert (out / name).stat().st_size > 0
     report = json.loads((out / "report.json").read_text())
     ate = report["ate"]["translation_3d_m"]
@@ -126,16 +151,29 @@ def test_eval_cli_writes_report_at_noise_level(scene, capsys):
 
 def test_yaw_alignment_and_kitti_input(scene, capsys):
     code, stdout, _ = _run(
-        ["eval", str(scene["root"] / "estimate.kitti"), "--span", str(scene["log"]), "--align", "yaw",
-         "--extrinsics", str(scene["root"] / "extrinsic.yaml"), "--out", str(scene["root"] / "out_yaw")], capsys)
+        [
+            "eval",
+            str(scene["root"] / "estimate.kitti"),
+            "--span",
+            str(scene["log"]),
+            "--align",
+            "yaw",
+            "--extrinsics",
+            str(scene["root"] / "extrinsic.yaml"),
+            "--out",
+            str(scene["root"] / "out_yaw"),
+        ],
+        capsys,
+    )
     assert code == 0 and "alignment yaw" in stdout
     report = json.loads((scene["root"] / "out_yaw" / "report.json").read_text())
     assert report["ate"]["translation_3d_m"]["rmse"] < 0.022
 
 
 def test_library_twin_matches_and_extrinsic_matters(scene):
-    result = evaluate_span_files(scene["root"] / "estimate_tum.txt", scene["log"],
-                                 extrinsics_path=scene["root"] / "extrinsic.yaml")
+    result = evaluate_span_files(
+        scene["root"] / "estimate_tum.txt", scene["log"], extrinsics_path=scene["root"] / "extrinsic.yaml"
+    )
     assert result.evaluation.ate.translation_3d_m.rmse < 0.022
     without = evaluate_span_files(scene["root"] / "estimate_tum.txt", scene["log"])
     assert without.evaluation.ate.translation_3d_m.rmse > 0.1  # the 0.3 m lever arm, unaccounted
@@ -146,8 +184,18 @@ def test_time_offset_option(scene, capsys, tmp_path):
     # (on a circle at constant speed, SE(3) alignment would absorb a time shift)
     enu = scene["enu_estimate"]
     write_tum(tmp_path / "late.txt", Trajectory(enu.stamps_ns + 250_000_000, enu.T_world_lidar))
-    args = ["eval", str(tmp_path / "late.txt"), "--span", str(scene["log"]), "--extrinsics",
-            str(scene["root"] / "extrinsic.yaml"), "--align", "none", "--out", str(tmp_path / "o")]
+    args = [
+        "eval",
+        str(tmp_path / "late.txt"),
+        "--span",
+        str(scene["log"]),
+        "--extrinsics",
+        str(scene["root"] / "extrinsic.yaml"),
+        "--align",
+        "none",
+        "--out",
+        str(tmp_path / "o"),
+    ]
     assert _run(args, capsys)[0] == 0
     late = json.loads((tmp_path / "o" / "report.json").read_text())["ate"]["translation_3d_m"]["rmse"]
     assert late > 0.5  # 0.25 s at 6 m/s
@@ -175,8 +223,9 @@ def test_error_log_without_usable_pose(scene, capsys, tmp_path):
     assert "no usable pose" in line and "BESTPOS x2" in line
     garbage = tmp_path / "garbage.bin"
     garbage.write_bytes(bytes(range(256)) * 10)
-    assert "no usable pose" in _error_line(_eval_args(scene["root"] / "estimate_tum.txt", garbage, tmp_path / "o"),
-                                           capsys)
+    assert "no usable pose" in _error_line(
+        _eval_args(scene["root"] / "estimate_tum.txt", garbage, tmp_path / "o"), capsys
+    )
 
 
 def test_error_no_time_overlap_names_both_spans(scene, capsys, tmp_path):
@@ -197,8 +246,10 @@ def test_error_ins_never_aligned(scene, capsys, tmp_path):
 
 def test_error_too_few_associated_poses(scene, capsys, tmp_path):
     est = scene["estimate"]
-    few = Trajectory(np.r_[est.stamps_ns[:2], est.stamps_ns[-1] + np.arange(1, 4) * 10**10],
-                     np.r_[est.T_world_lidar[:2], est.T_world_lidar[:3]])
+    few = Trajectory(
+        np.r_[est.stamps_ns[:2], est.stamps_ns[-1] + np.arange(1, 4) * 10**10],
+        np.r_[est.T_world_lidar[:2], est.T_world_lidar[:3]],
+    )
     write_tum(tmp_path / "few.txt", few)
     line = _error_line(_eval_args(tmp_path / "few.txt", scene["log"], tmp_path / "o"), capsys)
     assert "only 2 of 5 poses associated" in line and "at least 3" in line
@@ -219,14 +270,17 @@ def test_error_malformed_trajectory_rows_name_the_line(scene, capsys, tmp_path):
     rows[6] = "1 2 3"
     (tmp_path / "bad.kitti").write_text("\n".join(rows) + "\n")
     assert "bad.kitti:7: expected 12 KITTI columns" in _error_line(
-        _eval_args(tmp_path / "bad.kitti", scene["log"], tmp_path / "o"), capsys)
+        _eval_args(tmp_path / "bad.kitti", scene["log"], tmp_path / "o"), capsys
+    )
 
 
 def test_error_missing_inputs(scene, capsys, tmp_path):
     assert "trajectory file not found" in _error_line(
-        _eval_args(tmp_path / "none.txt", scene["log"], tmp_path / "o"), capsys)
+        _eval_args(tmp_path / "none.txt", scene["log"], tmp_path / "o"), capsys
+    )
     assert "GNSS log not found" in _error_line(
-        _eval_args(scene["root"] / "estimate_tum.txt", tmp_path / "none.log", tmp_path / "o"), capsys)
+        _eval_args(scene["root"] / "estimate_tum.txt", tmp_path / "none.log", tmp_path / "o"), capsys
+    )
     args = _eval_args(scene["root"] / "estimate_tum.txt", scene["log"], tmp_path / "o")
     assert "extrinsic file not found" in _error_line(args + ["--extrinsics", str(tmp_path / "e.toml")], capsys)
 
@@ -247,9 +301,20 @@ def test_config_section_is_used(scene, tmp_path, capsys):
 
 def test_origin_option_is_recorded(scene, tmp_path, capsys):
     o = ORIGIN
-    args = ["eval", str(scene["root"] / "estimate_tum.txt"), "--span", str(scene["log"]), "--extrinsics",
-            str(scene["root"] / "extrinsic.yaml"), "--out", str(tmp_path / "o"),
-            "--origin", repr(o.latitude_deg), repr(o.longitude_deg), repr(o.height_ellipsoid_m + 10.0)]
+    args = [
+        "eval",
+        str(scene["root"] / "estimate_tum.txt"),
+        "--span",
+        str(scene["log"]),
+        "--extrinsics",
+        str(scene["root"] / "extrinsic.yaml"),
+        "--out",
+        str(tmp_path / "o"),
+        "--origin",
+        repr(o.latitude_deg),
+        repr(o.longitude_deg),
+        repr(o.height_ellipsoid_m + 10.0),
+    ]
     assert _run(args, capsys)[0] == 0
     report = json.loads((tmp_path / "o" / "report.json").read_text())
     assert report["settings"]["origin"] == [o.latitude_deg, o.longitude_deg, o.height_ellipsoid_m + 10.0]
@@ -260,8 +325,15 @@ def test_origin_option_is_recorded(scene, tmp_path, capsys):
 def test_eval_on_real_span_stream(tmp_path, capsys):
     from pathlib import Path
 
-    stream = (Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "novatel_span_driver"
-              / "derived" / "propak6-ins-ppp.receiver_stream.bin.gz")
+    stream = (
+        Path(__file__).resolve().parents[1].parent
+        / "shared"
+        / "data"
+        / "real"
+        / "novatel_span_driver"
+        / "derived"
+        / "propak6-ins-ppp.receiver_stream.bin.gz"
+    )
     if not stream.exists():
         pytest.skip("shared/data/real is not beside the checkout")
     from lidar3d.gnss import read_span_log, span_reference
@@ -273,8 +345,21 @@ def test_eval_on_real_span_stream(tmp_path, capsys):
     estimate = reference.T_enu_imu[::2] @ T_IMU_LIDAR
     write_tum(tmp_path / "est.txt", Trajectory(reference.stamps_ns[::2], np.linalg.inv(G) @ estimate))
     (tmp_path / "e.yaml").write_text(EXTRINSIC_YAML)
-    code, stdout, _ = _run(["eval", str(tmp_path / "est.txt"), "--span", str(stream), "--extrinsics",
-                            str(tmp_path / "e.yaml"), "--align", "yaw", "--out", str(tmp_path / "o")], capsys)
+    code, stdout, _ = _run(
+        [
+            "eval",
+            str(tmp_path / "est.txt"),
+            "--span",
+            str(stream),
+            "--extrinsics",
+            str(tmp_path / "e.yaml"),
+            "--align",
+            "yaw",
+            "--out",
+            str(tmp_path / "o"),
+        ],
+        capsys,
+    )
     assert code == 0 and "2289 of 2289 INSPVAX" in stdout
     report = json.loads((tmp_path / "o" / "report.json").read_text())
     assert report["ate"]["translation_3d_m"]["max"] < 1e-4  # TUM text precision (1e-6 m, 1e-9 quaternion)

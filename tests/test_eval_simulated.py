@@ -26,8 +26,20 @@ def _write(simulation, folder):
 
 def _eval(folder, capsys, *extra):
     out = folder / ("eval" + "_".join(extra).replace("-", "").replace(" ", ""))
-    code = main(["-q", "eval", str(folder / "ground_truth_tum.txt"), "--span", str(folder / "novatel_span.log"),
-                 "--extrinsics", str(folder / "extrinsics.toml"), "--out", str(out), *extra])
+    code = main(
+        [
+            "-q",
+            "eval",
+            str(folder / "ground_truth_tum.txt"),
+            "--span",
+            str(folder / "novatel_span.log"),
+            "--extrinsics",
+            str(folder / "extrinsics.toml"),
+            "--out",
+            str(out),
+            *extra,
+        ]
+    )
     captured = capsys.readouterr()
     assert code == 0, captured.err
     return json.loads((out / "report.json").read_text())

@@ -6,8 +6,16 @@ import dataclasses
 
 import numpy as np
 import pytest
+from frontend_sim import (
+    SLENDER,
+    cell_truth,
+    points_in_world,
+    sample_scans,
+    scan_index_of,
+    simulation,
+    vertical_edge_tree,
+)
 
-from frontend_sim import SLENDER, cell_truth, points_in_world, sample_scans, scan_index_of, simulation, vertical_edge_tree
 from lidar3d.config import Config, FeatureConfig
 from lidar3d.features import (
     FeatureSet,
@@ -51,7 +59,10 @@ def _reference_smoothness(segmentation, config: FeatureConfig):
             elif r[i + 1] - r[i] > config.occlusion_depth_m:
                 picked[i + 1 : i + w + 2] = True
     for i in range(1, n - 1):
-        if abs(r[i - 1] - r[i]) > config.parallel_beam_ratio * r[i] and abs(r[i + 1] - r[i]) > config.parallel_beam_ratio * r[i]:
+        if (
+            abs(r[i - 1] - r[i]) > config.parallel_beam_ratio * r[i]
+            and abs(r[i + 1] - r[i]) > config.parallel_beam_ratio * r[i]
+        ):
             picked[i] = True
     return curvature, in_section, picked
 
@@ -179,7 +190,9 @@ def test_flats_on_the_ground_and_sharp_edges_on_poles_trunks_and_corners(scenari
         distance_m, _ = vertical_edge_tree(scenario).query(points_in_world(sim, sim_scan, sharp)[:, :2])
         on_object = sim_scan.object_id[sharp] > 0
         sharp_on_ground += int((~on_object).sum())
-        sharp_on_targets += int((np.isin(sim_scan.object_class[sharp], SLENDER) | (on_object & (distance_m < 0.5))).sum())
+        sharp_on_targets += int(
+            (np.isin(sim_scan.object_class[sharp], SLENDER) | (on_object & (distance_m < 0.5))).sum()
+        )
         sharp_total += sharp.size
     assert flat_on_ground / flat_total >= 0.99
     # the few sharp points on the ground lie at walls' feet and on uphill ground above the ground rows

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from frontend_sim import sample_scans
+
 from lidar3d.cli.main import main
 from lidar3d.io.bag_writer import write_scan_bag
 from lidar3d.io.pcd import read_pcd
@@ -56,7 +56,9 @@ def test_writes_one_folder_per_selected_scan(bag, tmp_path, capsys):
     assert 0 < len(sharp) < len(less_sharp)
     # points are the scan's own (lidar frame), stored as float32
     scan_points = scans[1].points.astype(np.float32)
-    assert np.isin(sharp.astype(np.float32).view([("", np.float32)] * 3), scan_points.view([("", np.float32)] * 3)).all()
+    assert np.isin(
+        sharp.astype(np.float32).view([("", np.float32)] * 3), scan_points.view([("", np.float32)] * 3)
+    ).all()
 
 
 def test_unusable_scan_gives_header_only_pcds(bag, tmp_path, caplog):

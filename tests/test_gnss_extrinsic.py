@@ -14,11 +14,17 @@ EXPECTED = np.array([[0.0, -1.0, 0.0, 0.1], [1.0, 0.0, 0.0, 0.3], [0.0, 0.0, 1.0
 @pytest.mark.parametrize(
     "name,text",
     [
-        ("q.toml", "[T_imu_lidar]\ntranslation_m = [0.1, 0.3, 0.8]\n"
-                   "quaternion_xyzw = [0.0, 0.0, 0.7071067811865476, 0.7071067811865476]\n"),
+        (
+            "q.toml",
+            "[T_imu_lidar]\ntranslation_m = [0.1, 0.3, 0.8]\n"
+            "quaternion_xyzw = [0.0, 0.0, 0.7071067811865476, 0.7071067811865476]\n",
+        ),
         ("r.toml", "[T_imu_lidar]\ntranslation_m = [0.1, 0.3, 0.8]\nrpy_deg = [0, 0, 90]\n"),
-        ("q.yaml", "T_imu_lidar:\n  translation_m: [0.1, 0.3, 0.8]\n"
-                   "  quaternion_xyzw: [0.0, 0.0, 0.7071067811865476, 0.7071067811865476]\n"),
+        (
+            "q.yaml",
+            "T_imu_lidar:\n  translation_m: [0.1, 0.3, 0.8]\n"
+            "  quaternion_xyzw: [0.0, 0.0, 0.7071067811865476, 0.7071067811865476]\n",
+        ),
         ("r.yml", "# comment\nT_imu_lidar:\n  translation_m: [0.1, 0.3, 0.8]\n  rpy_deg: [0.0, 0.0, 90.0]\n"),
     ],
 )
@@ -49,8 +55,11 @@ def test_write_read_round_trip(tmp_path):
     "name,text,message",
     [
         ("a.toml", "[T_imu_lidar]\ntranslation_m = [0, 0, 0]\n", "exactly one of quaternion_xyzw"),
-        ("b.toml", "[T_imu_lidar]\ntranslation_m = [0, 0, 0]\nrpy_deg = [0, 0, 0]\nquaternion_xyzw = [0, 0, 0, 1]\n",
-         "exactly one of"),
+        (
+            "b.toml",
+            "[T_imu_lidar]\ntranslation_m = [0, 0, 0]\nrpy_deg = [0, 0, 0]\nquaternion_xyzw = [0, 0, 0, 1]\n",
+            "exactly one of",
+        ),
         ("c.toml", "[T_imu_lidar]\ntranslation_m = [0, 0, 0]\nquaternion_xyzw = [0, 0, 0, 2]\n", "unit quaternion"),
         ("d.toml", "[T_imu_lidar]\ntranslation_m = [0, 0]\nrpy_deg = [0, 0, 0]\n", r"translation_m must be 3"),
         ("e.toml", "[lidar]\n", "no T_imu_lidar table"),

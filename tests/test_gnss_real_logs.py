@@ -29,7 +29,13 @@ OEM7 = REAL / "novatel_oem7_driver"
 pytestmark = pytest.mark.skipif(not REAL.is_dir(), reason="shared/data/real is not beside the checkout")
 
 POSITIVE_FILES = [
-    "BESTGNSSPOSA.txt", "BESTPOSA.txt", "CORRIMU.txt", "INSPVAA.txt", "INSPVASA.txt", "INSPVAXA.txt", "INSSTDEVA.txt",
+    "BESTGNSSPOSA.txt",
+    "BESTPOSA.txt",
+    "CORRIMU.txt",
+    "INSPVAA.txt",
+    "INSPVASA.txt",
+    "INSPVAXA.txt",
+    "INSSTDEVA.txt",
 ]
 
 
@@ -80,8 +86,17 @@ def test_short_header_equals_long_header_of_same_epoch():
     long = read_span_log(ASCII / "INSPVAA.txt").ins[3]
     short = read_span_log(ASCII / "INSPVASA.txt").ins[0]
     assert short.log == "INSPVAS" and short.time_status is None
-    for field in ("gps_week", "gps_seconds", "latitude_deg", "longitude_deg", "height_ellipsoid_m", "roll_deg",
-                  "pitch_deg", "azimuth_deg", "ins_status"):
+    for field in (
+        "gps_week",
+        "gps_seconds",
+        "latitude_deg",
+        "longitude_deg",
+        "height_ellipsoid_m",
+        "roll_deg",
+        "pitch_deg",
+        "azimuth_deg",
+        "ins_status",
+    ):
         assert getattr(short, field) == getattr(long, field)
 
 
@@ -152,8 +167,14 @@ def test_binary_frames_decode_to_published_values(frame):
             assert m.height_ellipsoid_m == pytest.approx(d["h_msl"] + d["undulation"], abs=1e-9)
             assert m.position_type == d["pos_type"] and m.time_status == frame["time_status"]
             assert m.extended_status == int(d["ext"], 16)
-            std = [m.latitude_std_m, m.longitude_std_m, m.height_std_m, m.roll_std_deg, m.pitch_std_deg,
-                   m.azimuth_std_deg]
+            std = [
+                m.latitude_std_m,
+                m.longitude_std_m,
+                m.height_std_m,
+                m.roll_std_deg,
+                m.pitch_std_deg,
+                m.azimuth_std_deg,
+            ]
             assert std == pytest.approx(d["std"][:3] + d["std"][6:], rel=1e-7)
     elif frame["msg"] == "BESTPOS":
         (m,) = log.positions
@@ -163,9 +184,17 @@ def test_binary_frames_decode_to_published_values(frame):
         assert [m.latitude_std_m, m.longitude_std_m, m.height_std_m] == pytest.approx(d["sd"], rel=1e-7)
     elif frame["msg"] == "INSSTDEV":
         (m,) = log.std_devs
-        values = [m.latitude_std_m, m.longitude_std_m, m.height_std_m, m.north_velocity_std_mps,
-                  m.east_velocity_std_mps, m.up_velocity_std_mps, m.roll_std_deg, m.pitch_std_deg,
-                  m.azimuth_std_deg]
+        values = [
+            m.latitude_std_m,
+            m.longitude_std_m,
+            m.height_std_m,
+            m.north_velocity_std_mps,
+            m.east_velocity_std_mps,
+            m.up_velocity_std_mps,
+            m.roll_std_deg,
+            m.pitch_std_deg,
+            m.azimuth_std_deg,
+        ]
         assert values == pytest.approx(d["std"], rel=1e-7)
         assert m.extended_status == int(d["ext"], 16) and m.time_since_update_s == d["tsu"]
     else:  # CORRIMUS / IMURATECORRIMUS: CRC-valid, counted, not decoded

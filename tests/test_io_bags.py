@@ -9,12 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 from rosbags.typesys import Stores, get_typestore
+from test_io_pointcloud2 import HESAI, OUSTER, STAMP_NS, assert_scan_equal, build_parts, vlp_scan
 
 from lidar3d.errors import BagError, OutputError, PointCloudError
-from lidar3d.io.scan_source import ScanSource, open_scan_source
 from lidar3d.io.bag_writer import write_cloud_bag, write_scan_bag
 from lidar3d.io.pointcloud2 import VELODYNE_FIELDS, encode_scan
-from test_io_pointcloud2 import HESAI, OUSTER, STAMP_NS, assert_scan_equal, build_parts, vlp_scan
+from lidar3d.io.scan_source import ScanSource, open_scan_source
 
 STORAGES = ["ros1", "ros2-sqlite3", "ros2-mcap"]
 PERIOD_NS = 100_000_000
@@ -25,7 +25,9 @@ def bag_path(tmp_path: Path, storage: str, name: str = "scans") -> Path:
 
 
 def make_scans(n: int, n_columns: int = 45, first: int = 0) -> list:
-    return [vlp_scan(n_columns=n_columns, stamp_ns=STAMP_NS + (first + i) * PERIOD_NS, seed=first + i) for i in range(n)]
+    return [
+        vlp_scan(n_columns=n_columns, stamp_ns=STAMP_NS + (first + i) * PERIOD_NS, seed=first + i) for i in range(n)
+    ]
 
 
 def read_all(path, **kwargs) -> tuple[list, ScanSource]:
@@ -62,22 +64,45 @@ def test_message_time_is_header_stamp_and_frame_id(tmp_path, storage):
     for _t, msg in rows:
         assert msg.header.frame_id == "lidar_top"
         assert (msg.point_step, msg.height, msg.is_dense) == (32, 1, True)
-        assert [(f.name, f.offset, f.datatype) for f in msg.fields] == [(f.name, f.offset, f.datatype) for f in VELODYNE_FIELDS]
+        assert [(f.name, f.offset, f.datatype) for f in msg.fields] == [
+            (f.name, f.offset, f.datatype) for f in VELODYNE_FIELDS
+        ]
 
 
 VARIANTS = {
     "velodyne": lambda scan: encode_scan(scan),
     "ouster_t_ns": lambda scan: build_parts(
-        scan, OUSTER, 48, values={"t": np.round(scan.time_offset_s * 1e9).astype(np.uint32), "reflectivity": 1, "ambient": 2, "range": 3}
+        scan,
+        OUSTER,
+        48,
+        values={"t": np.round(scan.time_offset_s * 1e9).astype(np.uint32), "reflectivity": 1, "ambient": 2, "range": 3},
     ),
-    "timestamp_abs_s": lambda scan: build_parts(scan, HESAI, 32, values={"timestamp": scan.stamp_ns * 1e-9 + scan.time_offset_s}),
-    "no_ring": lambda scan: build_parts(scan, [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"), ("time", 16, "f4")], 20),
-    "no_time": lambda scan: build_parts(scan, [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 16, "f4"), ("ring", 20, "u2")], 24),
+    "timestamp_abs_s": lambda scan: build_parts(
+        scan, HESAI, 32, values={"timestamp": scan.stamp_ns * 1e-9 + scan.time_offset_s}
+    ),
+    "no_ring": lambda scan: build_parts(
+        scan, [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"), ("time", 16, "f4")], 20
+    ),
+    "no_time": lambda scan: build_parts(
+        scan, [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 16, "f4"), ("ring", 20, "u2")], 24
+    ),
     "big_endian_organised": lambda scan: build_parts(
-        scan, [(f.name, f.offset, {7: "f4", 4: "u2"}[f.datatype]) for f in VELODYNE_FIELDS], 32, bigendian=True, height=16, row_pad=4
+        scan,
+        [(f.name, f.offset, {7: "f4", 4: "u2"}[f.datatype]) for f in VELODYNE_FIELDS],
+        32,
+        bigendian=True,
+        height=16,
+        row_pad=4,
     ),
 }
-TIME_TOLERANCE = {"velodyne": 0.0, "ouster_t_ns": 1e-9, "timestamp_abs_s": 1e-6, "no_ring": 0.0, "no_time": 1e-6, "big_endian_organised": 0.0}
+TIME_TOLERANCE = {
+    "velodyne": 0.0,
+    "ouster_t_ns": 1e-9,
+    "timestamp_abs_s": 1e-6,
+    "no_ring": 0.0,
+    "no_time": 1e-6,
+    "big_endian_organised": 0.0,
+}
 
 
 @pytest.mark.parametrize("variant", sorted(VARIANTS))
@@ -121,7 +146,11 @@ def test_open_scan_source_uses_config_topic_and_min_range(tmp_path):
     scan = make_scans(1)[0]
     points = scan.points.copy()
     points[0] = [0.5, 0.0, 0.0]
-    write_scan_bag(tmp_path / "a.bag", [type(scan)(scan.stamp_ns, points, scan.intensity, scan.ring, scan.time_offset_s)], topic="/lidar")
+    write_scan_bag(
+        tmp_path / "a.bag",
+        [type(scan)(scan.stamp_ns, points, scan.intensity, scan.ring, scan.time_offset_s)],
+        topic="/lidar",
+    )
     config = Config(sensor=SensorConfig(min_range_m=1.0), input=InputConfig(topic="/lidar"))
     with open_scan_source(tmp_path / "a.bag", config) as source:
         (decoded,) = list(source)
@@ -216,7 +245,9 @@ def test_ros1_unindexed_killed_recording(tmp_path, caplog):
         finally:
             logging.getLogger("lidar3d").removeHandler(caplog.handler)
     assert len(decoded) == 6 and source.stats.n_lost_messages == 0
-    assert "bag is truncated (no index: the recording was not closed cleanly): read 6 complete message(s)" in caplog.text
+    assert (
+        "bag is truncated (no index: the recording was not closed cleanly): read 6 complete message(s)" in caplog.text
+    )
 
 
 @pytest.mark.parametrize("compression", ["BZ2", "LZ4"])
@@ -316,7 +347,9 @@ def write_topics_bag(path: Path, storage: str, topics: dict[str, str], n: int = 
     else:
         from rosbags.rosbag2 import StoragePlugin, Writer
 
-        writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP if storage == "ros2-mcap" else StoragePlugin.SQLITE3)
+        writer = Writer(
+            path, version=9, storage_plugin=StoragePlugin.MCAP if storage == "ros2-mcap" else StoragePlugin.SQLITE3
+        )
     serialize = store.serialize_ros1 if ros1 else store.serialize_cdr
     with writer:
         conns = {name: writer.add_connection(name, msgtype, typestore=store) for name, msgtype in topics.items()}
@@ -376,18 +409,29 @@ def test_no_pointcloud2_topic_lists_topics(tmp_path, storage):
 @pytest.mark.parametrize("storage", STORAGES)
 def test_unknown_topic_lists_candidates(tmp_path, storage):
     path = bag_path(tmp_path, storage)
-    write_topics_bag(path, storage, {"/velodyne_points": "sensor_msgs/msg/PointCloud2", "/chatter": "std_msgs/msg/String"})
-    with pytest.raises(BagError, match=rf"{path.name}: topic '/points' not found; PointCloud2 topics: /velodyne_points$"):
+    write_topics_bag(
+        path, storage, {"/velodyne_points": "sensor_msgs/msg/PointCloud2", "/chatter": "std_msgs/msg/String"}
+    )
+    with pytest.raises(
+        BagError, match=rf"{path.name}: topic '/points' not found; PointCloud2 topics: /velodyne_points$"
+    ):
         read_all(path, topic="/points")
-    with pytest.raises(BagError, match=r"topic '/chatter' has type std_msgs/msg/String, not sensor_msgs/msg/PointCloud2"):
+    with pytest.raises(
+        BagError, match=r"topic '/chatter' has type std_msgs/msg/String, not sensor_msgs/msg/PointCloud2"
+    ):
         read_all(path, topic="/chatter")
 
 
 @pytest.mark.parametrize("storage", STORAGES)
 def test_several_pointcloud2_topics_need_a_choice(tmp_path, storage):
     path = bag_path(tmp_path, storage)
-    write_topics_bag(path, storage, {"/front/points": "sensor_msgs/msg/PointCloud2", "/rear/points": "sensor_msgs/msg/PointCloud2"})
-    with pytest.raises(BagError, match=rf"{path.name}: several PointCloud2 topics \(/front/points, /rear/points\); choose one with --topic"):
+    write_topics_bag(
+        path, storage, {"/front/points": "sensor_msgs/msg/PointCloud2", "/rear/points": "sensor_msgs/msg/PointCloud2"}
+    )
+    with pytest.raises(
+        BagError,
+        match=rf"{path.name}: several PointCloud2 topics \(/front/points, /rear/points\); choose one with --topic",
+    ):
         read_all(path)
     decoded, source = read_all(path, topic="/rear/points")
     assert source.topic == "/rear/points" and len(decoded) == 2
@@ -457,9 +501,21 @@ def test_ring_numbered_from_the_top_is_renumbered_by_elevation(tmp_path, storage
     """Ouster counts rings from the top beam down; a Scan's ring 0 is the lowest beam."""
     scans = make_scans(3)
     path = bag_path(tmp_path, storage)
-    top_down = (build_parts(s, OUSTER, 48, values={
-        "t": np.round(s.time_offset_s * 1e9).astype(np.uint32), "ring": 15 - s.ring, "reflectivity": 0, "ambient": 0, "range": 0,
-    }) for s in scans)
+    top_down = (
+        build_parts(
+            s,
+            OUSTER,
+            48,
+            values={
+                "t": np.round(s.time_offset_s * 1e9).astype(np.uint32),
+                "ring": 15 - s.ring,
+                "reflectivity": 0,
+                "ambient": 0,
+                "range": 0,
+            },
+        )
+        for s in scans
+    )
     write_cloud_bag(path, top_down, storage=storage)
     decoded, _ = read_all(path)
     for got, want in zip(decoded, scans):
@@ -480,7 +536,11 @@ def test_ros2_unfinished_mcap_with_zstd_chunks(tmp_path):
     with writer:
         conn = writer.add_connection("/velodyne_points", "sensor_msgs/msg/PointCloud2", typestore=store)
         for scan in scans:
-            writer.write(conn, scan.stamp_ns, store.serialize_cdr(parts_to_message(encode_scan(scan), store), "sensor_msgs/msg/PointCloud2"))
+            writer.write(
+                conn,
+                scan.stamp_ns,
+                store.serialize_cdr(parts_to_message(encode_scan(scan), store), "sensor_msgs/msg/PointCloud2"),
+            )
     mcap = next(path.glob("*.mcap"))
     data = mcap.read_bytes()
     # Footer: opcode, uint64 length, uint64 summary_start, ...; the 13-byte DataEnd record precedes
@@ -490,6 +550,8 @@ def test_ros2_unfinished_mcap_with_zstd_chunks(tmp_path):
     (path / "metadata.yaml").unlink()
     decoded, source = read_all(path)
     assert len(decoded) == 40 and source.stats.n_lost_messages == 0
-    assert source.notes[0].endswith("are truncated: read every complete message before the damage, in recording order; no message was cut off")
+    assert source.notes[0].endswith(
+        "are truncated: read every complete message before the damage, in recording order; no message was cut off"
+    )
     for got, want in zip(decoded, scans):
         assert_scan_equal(got, want)

@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from frontend_sim import sample_scans
+from test_io_pointcloud2 import build_parts
+
 from lidar3d.cli.main import main
 from lidar3d.config import Config
 from lidar3d.features import run_front_end
@@ -18,12 +19,21 @@ from lidar3d.io.bag_info import bag_info
 from lidar3d.io.bag_writer import write_cloud_bag, write_scan_bag
 from lidar3d.io.pcd import read_pcd
 from lidar3d.io.scan_source import open_scan_source
-from test_io_pointcloud2 import build_parts
 
-VELODYNE_LAYOUT = [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 16, "f4"), ("ring", 20, "u2"),
-                   ("time", 24, "f4")]
-FEATURE_FILES = {"edge_sharp.pcd": "sharp", "edge_less_sharp.pcd": "less_sharp", "planar_flat.pcd": "flat",
-                 "planar_less_flat.pcd": "less_flat"}
+VELODYNE_LAYOUT = [
+    ("x", 0, "f4"),
+    ("y", 4, "f4"),
+    ("z", 8, "f4"),
+    ("intensity", 16, "f4"),
+    ("ring", 20, "u2"),
+    ("time", 24, "f4"),
+]
+FEATURE_FILES = {
+    "edge_sharp.pcd": "sharp",
+    "edge_less_sharp.pcd": "less_sharp",
+    "planar_flat.pcd": "flat",
+    "planar_less_flat.pcd": "less_flat",
+}
 
 
 @pytest.fixture(scope="module")

@@ -6,14 +6,14 @@ import dataclasses
 import logging
 
 import pytest
+from test_io_bags import STORAGES, _drop_index, _ros1_message_positions, bag_path, make_scans, write_topics_bag
+from test_io_pointcloud2 import STAMP_NS, vlp_scan
 
 from lidar3d.cli.main import main
 from lidar3d.io.bag_info import bag_info, format_bag_info
 from lidar3d.io.bag_writer import write_cloud_bag, write_scan_bag
 from lidar3d.io.pointcloud2 import PointField, encode_scan
 from lidar3d.sensors import HDL32E, VLP32C
-from test_io_bags import STORAGES, _drop_index, _ros1_message_positions, bag_path, make_scans, write_topics_bag
-from test_io_pointcloud2 import STAMP_NS, vlp_scan
 
 
 @pytest.fixture(autouse=True)
@@ -28,7 +28,9 @@ def _restore_logging():
 @pytest.mark.parametrize("storage", STORAGES)
 def test_bag_info_record(tmp_path, storage):
     path = bag_path(tmp_path, storage)
-    write_topics_bag(path, storage, {"/velodyne_points": "sensor_msgs/msg/PointCloud2", "/chatter": "std_msgs/msg/String"}, n=3)
+    write_topics_bag(
+        path, storage, {"/velodyne_points": "sensor_msgs/msg/PointCloud2", "/chatter": "std_msgs/msg/String"}, n=3
+    )
     info = bag_info(path)
     assert info.format == ("ros1" if storage == "ros1" else "ros2")
     assert [(t.name, t.msgtype, t.count) for t in info.topics] == [
@@ -69,7 +71,10 @@ def test_cli_info_prints_every_bag(tmp_path, capsys):
     assert f"bag:          {tmp_path / 'a.bag'} (ros1)" in out
     assert f"bag:          {tmp_path / 'b'} (ros2)" in out
     assert "lidar topic:  /velodyne_points (2 scans)" in out and "lidar topic:  /velodyne_points (3 scans)" in out
-    assert "point fields: x:FLOAT32@0 y:FLOAT32@4 z:FLOAT32@8 intensity:FLOAT32@16 ring:UINT16@20 time:FLOAT32@24 (point_step 32" in out
+    assert (
+        "point fields: x:FLOAT32@0 y:FLOAT32@4 z:FLOAT32@8 intensity:FLOAT32@16 ring:UINT16@20 time:FLOAT32@24 (point_step 32"
+        in out
+    )
     assert "sensor model: vlp16 (16 rings in the first cloud)" in out
     assert f"first stamp:  {STAMP_NS // 10**9}.{STAMP_NS % 10**9:09d}" in out
     assert "duration:     0.100 s" in out and "duration:     0.200 s" in out
@@ -89,7 +94,10 @@ def test_cli_truncated_bag_warns_and_reports(tmp_path, capsys):
     cut.write_bytes(full.read_bytes()[: _ros1_message_positions(full)[25] + 40])
     assert main(["info", str(cut)]) == 0
     captured = capsys.readouterr()
-    assert f"WARNING: {cut}: bag is truncated (index unreadable: the file is cut short): read 25 complete message(s)" in captured.err
+    assert (
+        f"WARNING: {cut}: bag is truncated (index unreadable: the file is cut short): read 25 complete message(s)"
+        in captured.err
+    )
     assert "1 incomplete message(s) at the end lost" in captured.err
     assert "lidar topic:  /velodyne_points (25 scans)" in captured.out
 
@@ -109,7 +117,10 @@ def _bad_bags(tmp_path):
     cases["missing path"] = ([str(missing)], f"{missing}: no such file or folder")
     text = tmp_path / "notes.txt"
     text.write_text("not a bag\n")
-    cases["not a bag"] = ([str(text)], f"{text}: not a bag (expected a ROS1 .bag file, a ROS2 bag folder, or a .db3/.mcap file)")
+    cases["not a bag"] = (
+        [str(text)],
+        f"{text}: not a bag (expected a ROS1 .bag file, a ROS2 bag folder, or a .db3/.mcap file)",
+    )
     empty = tmp_path / "empty.bag"
     write_scan_bag(empty, [])
     cases["empty bag"] = ([str(empty)], f"{empty}: bag is empty (no messages)")
@@ -119,14 +130,21 @@ def _bad_bags(tmp_path):
     chatter = tmp_path / "chatter.bag"
     write_topics_bag(chatter, "ros1", {"/chatter": "std_msgs/msg/String"})
     cases["no PointCloud2 topic"] = (
-        [str(chatter)], f"{chatter}: no sensor_msgs/msg/PointCloud2 topic; topics: /chatter (std_msgs/msg/String, 2)"
+        [str(chatter)],
+        f"{chatter}: no sensor_msgs/msg/PointCloud2 topic; topics: /chatter (std_msgs/msg/String, 2)",
     )
     one = tmp_path / "one.bag"
     write_scan_bag(one, make_scans(1))
-    cases["unknown --topic"] = ([str(one), "--topic", "/points"], f"{one}: topic '/points' not found; PointCloud2 topics: /velodyne_points")
+    cases["unknown --topic"] = (
+        [str(one), "--topic", "/points"],
+        f"{one}: topic '/points' not found; PointCloud2 topics: /velodyne_points",
+    )
     two = tmp_path / "two"
     write_topics_bag(two, "ros2-mcap", {"/a": "sensor_msgs/msg/PointCloud2", "/b": "sensor_msgs/msg/PointCloud2"})
-    cases["several PointCloud2 topics"] = ([str(two)], f"{two}: several PointCloud2 topics (/a, /b); choose one with --topic")
+    cases["several PointCloud2 topics"] = (
+        [str(two)],
+        f"{two}: several PointCloud2 topics (/a, /b); choose one with --topic",
+    )
     full = tmp_path / "full.bag"
     write_scan_bag(full, make_scans(2))
     cut = tmp_path / "cut.bag"

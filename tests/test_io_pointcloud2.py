@@ -53,21 +53,35 @@ def f32(values: np.ndarray) -> np.ndarray:
     return np.asarray(values, dtype=np.float32).astype(np.float64)
 
 
-def build_parts(scan: Scan, fields: list[tuple[str, int, str]], point_step: int, *, bigendian=False,
-                height=1, row_pad=0, values=None) -> PointCloud2Parts:
+def build_parts(
+    scan: Scan,
+    fields: list[tuple[str, int, str]],
+    point_step: int,
+    *,
+    bigendian=False,
+    height=1,
+    row_pad=0,
+    values=None,
+) -> PointCloud2Parts:
     """Pack ``scan`` into an arbitrary layout: fields as (name, offset, numpy type code)."""
     order = ">" if bigendian else "<"
-    dtype = np.dtype({
-        "names": [f[0] for f in fields],
-        "formats": [order + f[2] for f in fields],
-        "offsets": [f[1] for f in fields],
-        "itemsize": point_step,
-    })
+    dtype = np.dtype(
+        {
+            "names": [f[0] for f in fields],
+            "formats": [order + f[2] for f in fields],
+            "offsets": [f[1] for f in fields],
+            "itemsize": point_step,
+        }
+    )
     n = len(scan)
     records = np.zeros(n, dtype=dtype)
     defaults = {
-        "x": scan.points[:, 0], "y": scan.points[:, 1], "z": scan.points[:, 2],
-        "intensity": scan.intensity, "ring": scan.ring, "time": scan.time_offset_s,
+        "x": scan.points[:, 0],
+        "y": scan.points[:, 1],
+        "z": scan.points[:, 2],
+        "intensity": scan.intensity,
+        "ring": scan.ring,
+        "time": scan.time_offset_s,
     }
     defaults.update(values or {})
     for name, _offset, _code in fields:
@@ -79,10 +93,16 @@ def build_parts(scan: Scan, fields: list[tuple[str, int, str]], point_step: int,
     if row_pad:
         rows = np.concatenate([rows, np.full((height, row_pad), 0xAB, np.uint8)], axis=1)
     return PointCloud2Parts(
-        stamp_ns=scan.stamp_ns, frame_id="lidar", height=height, width=width,
+        stamp_ns=scan.stamp_ns,
+        frame_id="lidar",
+        height=height,
+        width=width,
         fields=tuple(PointField(name, offset, codes[code]) for name, offset, code in fields),
-        is_bigendian=bigendian, point_step=point_step, row_step=width * point_step + row_pad,
-        data=rows.reshape(-1).copy(), is_dense=True,
+        is_bigendian=bigendian,
+        point_step=point_step,
+        row_step=width * point_step + row_pad,
+        data=rows.reshape(-1).copy(),
+        is_dense=True,
     )
 
 
@@ -90,9 +110,20 @@ def test_encode_is_exactly_the_velodyne_layout():
     scan = vlp_scan(n_columns=4)
     parts = encode_scan(scan, frame_id="velodyne")
     assert [(f.name, f.offset, f.datatype, f.count) for f in parts.fields] == [
-        ("x", 0, 7, 1), ("y", 4, 7, 1), ("z", 8, 7, 1), ("intensity", 16, 7, 1), ("ring", 20, 4, 1), ("time", 24, 7, 1),
+        ("x", 0, 7, 1),
+        ("y", 4, 7, 1),
+        ("z", 8, 7, 1),
+        ("intensity", 16, 7, 1),
+        ("ring", 20, 4, 1),
+        ("time", 24, 7, 1),
     ]
-    assert (parts.point_step, parts.height, parts.width, parts.is_dense, parts.is_bigendian) == (32, 1, len(scan), True, False)
+    assert (parts.point_step, parts.height, parts.width, parts.is_dense, parts.is_bigendian) == (
+        32,
+        1,
+        len(scan),
+        True,
+        False,
+    )
     assert parts.row_step == 32 * len(scan) and parts.data.size == 32 * len(scan)
     raw = parts.data.tobytes()
     i = 5  # check one point's bytes by hand
@@ -123,10 +154,25 @@ def test_velodyne_round_trip_is_exact():
     assert (stats.n_input, stats.n_nonfinite, stats.n_below_min_range, stats.n_kept) == (len(scan), 0, 0, len(scan))
 
 
-OUSTER = [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 16, "f4"), ("t", 20, "u4"),
-          ("reflectivity", 24, "u2"), ("ring", 26, "u2"), ("ambient", 28, "u2"), ("range", 32, "u4")]
-HESAI = [("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "f4"), ("timestamp", 16, "f8"),
-         ("ring", 24, "u2")]
+OUSTER = [
+    ("x", 0, "f4"),
+    ("y", 4, "f4"),
+    ("z", 8, "f4"),
+    ("intensity", 16, "f4"),
+    ("t", 20, "u4"),
+    ("reflectivity", 24, "u2"),
+    ("ring", 26, "u2"),
+    ("ambient", 28, "u2"),
+    ("range", 32, "u4"),
+]
+HESAI = [
+    ("x", 0, "f4"),
+    ("y", 4, "f4"),
+    ("z", 8, "f4"),
+    ("intensity", 12, "f4"),
+    ("timestamp", 16, "f8"),
+    ("ring", 24, "u2"),
+]
 
 
 def test_ouster_t_uint32_nanoseconds():
@@ -177,7 +223,14 @@ def test_big_endian_and_organised_cloud_with_row_padding():
 
 def test_double_precision_coordinates():
     scan = vlp_scan()
-    fields = [("x", 0, "f8"), ("y", 8, "f8"), ("z", 16, "f8"), ("intensity", 24, "u1"), ("ring", 25, "u1"), ("time", 28, "f4")]
+    fields = [
+        ("x", 0, "f8"),
+        ("y", 8, "f8"),
+        ("z", 16, "f8"),
+        ("intensity", 24, "u1"),
+        ("ring", 25, "u1"),
+        ("time", 28, "f4"),
+    ]
     decoded, _ = decode_parts(build_parts(scan, fields, 32))
     np.testing.assert_array_equal(decoded.points, scan.points)
 
@@ -205,7 +258,9 @@ def test_empty_cloud():
 def test_data_length_mismatch_is_an_error():
     parts = encode_scan(vlp_scan(n_columns=4))
     short = dataclasses.replace(parts, data=parts.data[:-5])
-    with pytest.raises(PointCloudError, match=r"data holds 2043 bytes but width\*height\*point_step = 64\*1\*32 = 2048"):
+    with pytest.raises(
+        PointCloudError, match=r"data holds 2043 bytes but width\*height\*point_step = 64\*1\*32 = 2048"
+    ):
         decode_parts(short)
 
 
@@ -228,7 +283,9 @@ def test_field_outside_point_step_and_missing_coordinates():
 
 def test_row_step_smaller_than_a_row_is_an_error():
     scan = vlp_scan(n_columns=4)
-    parts = build_parts(scan, [(f.name, f.offset, {7: "f4", 4: "u2"}[f.datatype]) for f in VELODYNE_FIELDS], 32, height=16)
+    parts = build_parts(
+        scan, [(f.name, f.offset, {7: "f4", 4: "u2"}[f.datatype]) for f in VELODYNE_FIELDS], 32, height=16
+    )
     with pytest.raises(PointCloudError, match="row_step 100 is smaller than width"):
         decode_parts(dataclasses.replace(parts, row_step=100))
 

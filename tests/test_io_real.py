@@ -18,10 +18,10 @@ import numpy as np
 import pytest
 
 from lidar3d.errors import BagError
-from lidar3d.io.scan_source import ScanSource
 from lidar3d.io.bag_writer import write_cloud_bag
 from lidar3d.io.pcd import read_pcd
 from lidar3d.io.pointcloud2 import PointCloud2Parts, PointField, PointFieldType, decode_parts
+from lidar3d.io.scan_source import ScanSource
 from lidar3d.sensors import VLP16, VLP32C, guess_sensor_model
 
 REAL = Path(__file__).resolve().parents[1] / ".." / "shared" / "data" / "real"
@@ -37,28 +37,51 @@ VLP32_PCD = NEBULA / "vlp32" / "1713492677464078412.pcd"
 
 # nebula_common PointXYZIRCAEDT, as the driver publishes it
 NEBULA_LAYOUT = [
-    ("x", 0, "f4"), ("y", 4, "f4"), ("z", 8, "f4"), ("intensity", 12, "u1"), ("return_type", 13, "u1"),
-    ("channel", 14, "u2"), ("azimuth", 16, "f4"), ("elevation", 20, "f4"), ("distance", 24, "f4"),
+    ("x", 0, "f4"),
+    ("y", 4, "f4"),
+    ("z", 8, "f4"),
+    ("intensity", 12, "u1"),
+    ("return_type", 13, "u1"),
+    ("channel", 14, "u2"),
+    ("azimuth", 16, "f4"),
+    ("elevation", 20, "f4"),
+    ("distance", 24, "f4"),
     ("time_stamp", 28, "u4"),
 ]
-CODES = {"u1": PointFieldType.UINT8, "u2": PointFieldType.UINT16, "u4": PointFieldType.UINT32, "f4": PointFieldType.FLOAT32}
+CODES = {
+    "u1": PointFieldType.UINT8,
+    "u2": PointFieldType.UINT16,
+    "u4": PointFieldType.UINT32,
+    "f4": PointFieldType.FLOAT32,
+}
 
 
 def nebula_parts(pcd: Path, stamp_ns: int, layout=NEBULA_LAYOUT) -> tuple[PointCloud2Parts, np.ndarray, dict]:
     points, fields = read_pcd(pcd)
-    dtype = np.dtype({
-        "names": [n for n, _o, _c in layout], "formats": ["<" + c for _n, _o, c in layout],
-        "offsets": [o for _n, o, _c in layout], "itemsize": 32,
-    })
+    dtype = np.dtype(
+        {
+            "names": [n for n, _o, _c in layout],
+            "formats": ["<" + c for _n, _o, c in layout],
+            "offsets": [o for _n, o, _c in layout],
+            "itemsize": 32,
+        }
+    )
     records = np.zeros(points.shape[0], dtype)
     for axis, name in enumerate("xyz"):
         records[name] = points[:, axis]
     for name, _o, _c in layout[3:]:
         records[name] = fields[name]
     parts = PointCloud2Parts(
-        stamp_ns=stamp_ns, frame_id="velodyne_top", height=1, width=points.shape[0],
-        fields=tuple(PointField(n, o, CODES[c]) for n, o, c in layout), is_bigendian=False, point_step=32,
-        row_step=32 * points.shape[0], data=records.view(np.uint8).reshape(-1), is_dense=True,
+        stamp_ns=stamp_ns,
+        frame_id="velodyne_top",
+        height=1,
+        width=points.shape[0],
+        fields=tuple(PointField(n, o, CODES[c]) for n, o, c in layout),
+        is_bigendian=False,
+        point_step=32,
+        row_step=32 * points.shape[0],
+        data=records.view(np.uint8).reshape(-1),
+        is_dense=True,
     )
     return parts, points, fields
 
@@ -71,7 +94,9 @@ def nebula_parts(pcd: Path, stamp_ns: int, layout=NEBULA_LAYOUT) -> tuple[PointC
     ],
 )
 def test_real_packet_bags_are_read_and_refused_with_their_topics(bag, listing):
-    with pytest.raises(BagError, match=rf"{bag.name}: no sensor_msgs/msg/PointCloud2 topic; topics: {re.escape(listing)}$"):
+    with pytest.raises(
+        BagError, match=rf"{bag.name}: no sensor_msgs/msg/PointCloud2 topic; topics: {re.escape(listing)}$"
+    ):
         ScanSource(bag).open()
 
 
@@ -80,7 +105,10 @@ def test_real_bag_without_metadata_is_read_from_its_db3(tmp_path):
     copy.mkdir()
     for db3 in VLP16_BAG.glob("*.db3"):
         shutil.copy(db3, copy / db3.name)
-    with pytest.raises(BagError, match=r"no sensor_msgs/msg/PointCloud2 topic; topics: /velodyne_packets \(velodyne_msgs/msg/VelodyneScan, 4\)"):
+    with pytest.raises(
+        BagError,
+        match=r"no sensor_msgs/msg/PointCloud2 topic; topics: /velodyne_packets \(velodyne_msgs/msg/VelodyneScan, 4\)",
+    ):
         ScanSource(copy).open()
 
 

@@ -12,9 +12,7 @@ S = 1_000_000_000
 
 def _track():
     """Keyframes 0..4 at 10 s spacing; keyframe 4 returns near keyframes 0 and 1, 6 m higher."""
-    positions = np.array(
-        [[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [50.0, 0.0, 0.0], [60.0, 0.0, 0.0], [1.0, 1.0, 6.0]]
-    )
+    positions = np.array([[0.0, 0.0, 0.0], [3.0, 0.0, 0.0], [50.0, 0.0, 0.0], [60.0, 0.0, 0.0], [1.0, 1.0, 6.0]])
     stamps = np.arange(5, dtype=np.int64) * 10 * S
     return positions, stamps
 

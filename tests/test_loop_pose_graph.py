@@ -140,8 +140,12 @@ def test_gtsam_failure_drops_the_loop_and_continues(caplog):
     assert dropped == [(len(truth) - 1, 1)]
     assert graph.dropped_loops == dropped and graph.loop_edges == []
     assert "dropped" in caplog.text
-    graph.add_keyframe(len(truth), truth[-1] @ exp_se3(np.array([1.0, 0, 0, 0, 0, 0])),
-                       exp_se3(np.array([1.0, 0, 0, 0, 0, 0])), ODO_SIGMAS)
+    graph.add_keyframe(
+        len(truth),
+        truth[-1] @ exp_se3(np.array([1.0, 0, 0, 0, 0, 0])),
+        exp_se3(np.array([1.0, 0, 0, 0, 0, 0])),
+        ODO_SIGMAS,
+    )
     poses = graph.optimize()
     np.testing.assert_allclose(poses[: len(truth)], truth, atol=1e-6)
 

@@ -21,9 +21,20 @@ S = 1_000_000_000
 def _candidate(query, match, verdict, reason, fitness=0.9) -> LoopCandidate:
     info = np.eye(6) * 100.0 if verdict is Verdict.ACCEPTED else np.zeros((6, 6))
     return LoopCandidate(
-        query=query, match=match, query_stamp_ns=100 * S + query, match_stamp_ns=10 * S + match,
-        distance_m=1.25, fitness=fitness, inlier_rmse_m=0.12, overlap=0.8, correction_m=0.4,
-        correction_deg=0.5, verdict=verdict, reason=reason, T_match_query=np.eye(4), information=info,
+        query=query,
+        match=match,
+        query_stamp_ns=100 * S + query,
+        match_stamp_ns=10 * S + match,
+        distance_m=1.25,
+        fitness=fitness,
+        inlier_rmse_m=0.12,
+        overlap=0.8,
+        correction_m=0.4,
+        correction_deg=0.5,
+        verdict=verdict,
+        reason=reason,
+        T_match_query=np.eye(4),
+        information=info,
     )
 
 
@@ -57,8 +68,9 @@ def test_g2o_and_top_view_files(tmp_path):
     assert g2o.read_text().count("VERTEX_SE3:QUAT") == 6
     closures = [_candidate(5, 0, Verdict.ACCEPTED, "ok"), _candidate(4, 0, Verdict.LOW_OVERLAP, "no")]
     positions = np.array(poses)[:, :3, 3]
-    png = write_top_view(tmp_path / "top_view.png", positions, positions, closures,
-                         before_m=positions + 0.1, reference_m=positions)
+    png = write_top_view(
+        tmp_path / "top_view.png", positions, positions, closures, before_m=positions + 0.1, reference_m=positions
+    )
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
     assert not list(tmp_path.glob(".*tmp*"))  # atomic writes leave no temporaries

@@ -26,12 +26,12 @@ CONFIG = LoopConfig()
 KEYFRAME_STRIDE = 2  # a keyframe every 2 sweeps (~1.3 m at 6.5 m/s)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _sim() -> Simulation:
     return Simulation("loop", seed=0)
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _cloud(scan_index: int) -> np.ndarray:
     """Sweep ``scan_index`` deskewed to its stamp with the true motion, 1-80 m, 0.2 m voxels."""
     sim = _sim()
@@ -49,8 +49,14 @@ def _angle_deg(R: np.ndarray) -> float:
 def _first_pass_target(match_scan: int, neighbours: int = 10):
     """Target around first-pass keyframe scan ``match_scan`` from true poses (match frame)."""
     gt = _sim().ground_truth.T_world_lidar
-    scans = [s for s in range(max(0, match_scan - neighbours * KEYFRAME_STRIDE),
-                              match_scan + neighbours * KEYFRAME_STRIDE + 1, KEYFRAME_STRIDE)]
+    scans = [
+        s
+        for s in range(
+            max(0, match_scan - neighbours * KEYFRAME_STRIDE),
+            match_scan + neighbours * KEYFRAME_STRIDE + 1,
+            KEYFRAME_STRIDE,
+        )
+    ]
     clouds = [_cloud(s) for s in scans]
     poses = gt[scans]
     match = scans.index(match_scan)
@@ -90,8 +96,13 @@ def test_verification_rejects_a_different_street_with_a_reason():
         guess[:3, :3] = (invert(gt[40]) @ gt[query_scan])[:3, :3]  # as if drift had put it there
         result = verify_loop(_cloud(query_scan), target, guess, CONFIG, max_correction_m=3.0)
         assert not result.accepted
-        assert result.verdict in (Verdict.LOW_FITNESS, Verdict.LOW_OVERLAP, Verdict.HIGH_RMSE,
-                                  Verdict.LARGE_CORRECTION, Verdict.NOT_CONVERGED)
+        assert result.verdict in (
+            Verdict.LOW_FITNESS,
+            Verdict.LOW_OVERLAP,
+            Verdict.HIGH_RMSE,
+            Verdict.LARGE_CORRECTION,
+            Verdict.NOT_CONVERGED,
+        )
         assert result.reason
         assert not np.any(result.information)
 
@@ -125,8 +136,9 @@ def test_information_matches_open3d_after_the_adjoint():
     skew_t = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
     adjoint = np.block([[R, np.zeros((3, 3))], [skew_t @ R, R]])  # GTSAM order (rot, trans)
     np.testing.assert_allclose(point_information(source), adjoint.T @ left @ adjoint, rtol=1e-9, atol=1e-6)
-    info = loop_information(source, 0.05, effective_points=100, min_sigma_rotation_rad=1e-3,
-                            min_sigma_translation_m=0.02)
+    info = loop_information(
+        source, 0.05, effective_points=100, min_sigma_rotation_rad=1e-3, min_sigma_translation_m=0.02
+    )
     sigmas = np.sqrt(np.diag(np.linalg.inv(info)))
     assert np.all(sigmas[3:] >= 0.02) and np.all(sigmas[3:] < 0.03)
 
@@ -209,9 +221,11 @@ def test_correct_scan_poses_is_exact_at_keyframes_and_interpolates_between():
     scan_poses = np.array([exp_se3(np.array([0.5 * i, 0.0, 0.0, 0.0, 0.0, 0.01 * i])) for i in range(10)])
     keyframe_rows = [1, 5, 8]
     old = scan_poses[keyframe_rows]
-    corrections = [exp_se3(np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.0])),
-                   exp_se3(np.array([0.3, 0.2, 0.0, 0.0, 0.0, 0.02])),
-                   exp_se3(np.array([0.3, 0.2, 0.1, 0.0, 0.0, 0.02]))]
+    corrections = [
+        exp_se3(np.array([0.1, 0.0, 0.0, 0.0, 0.0, 0.0])),
+        exp_se3(np.array([0.3, 0.2, 0.0, 0.0, 0.0, 0.02])),
+        exp_se3(np.array([0.3, 0.2, 0.1, 0.0, 0.0, 0.02])),
+    ]
     new = np.array([C @ T for C, T in zip(corrections, old)])
     out = correct_scan_poses(stamps, scan_poses, stamps[keyframe_rows], old, new)
     np.testing.assert_allclose(out[keyframe_rows], new, atol=1e-12)

@@ -159,8 +159,11 @@ def test_association_interpolates_and_respects_gaps():
 
 def test_no_time_overlap_names_both_spans():
     stamps, T = _drive(50)
-    with pytest.raises(EvaluationError, match=r"no time overlap: trajectory spans \[1600000100\.000, .*reference "
-                                              r"spans \[1600000000\.000, 1600000004\.900\]"):
+    with pytest.raises(
+        EvaluationError,
+        match=r"no time overlap: trajectory spans \[1600000100\.000, .*reference "
+        r"spans \[1600000000\.000, 1600000004\.900\]",
+    ):
         associate(Trajectory(stamps + 100_000_000_000, T), Trajectory(stamps, T), 0.2)
 
 
@@ -188,8 +191,9 @@ def test_distance_rpe_agrees_with_evo(delta_m):
         (metrics.PoseRelation.translation_part, ours.translation_m),
         (metrics.PoseRelation.rotation_angle_deg, ours.rotation_deg),
     ):
-        rpe = metrics.RPE(relation, delta=delta_m, delta_unit=metrics.Unit.meters, all_pairs=False,
-                          pairs_from_reference=True)
+        rpe = metrics.RPE(
+            relation, delta=delta_m, delta_unit=metrics.Unit.meters, all_pairs=False, pairs_from_reference=True
+        )
         rpe.process_data((_evo_trajectory(stamps, T), _evo_trajectory(stamps, P)))
         assert len(rpe.error) == stats.n > 5
         for name in ("rmse", "mean", "median", "max"):

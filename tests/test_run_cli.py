@@ -16,9 +16,9 @@ from terminal import Terminal, screen_lines
 
 from lidar3d.cli.main import main
 from lidar3d.config import Config, load_config
-from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.bag_writer import write_scan_bag
 from lidar3d.io.pcd import read_pcd
+from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import read_kitti, read_tum
 from lidar3d.run import run_bag
 from lidar3d.summary import read_summary

@@ -7,8 +7,8 @@ import logging
 
 import numpy as np
 import pytest
-
 from frontend_sim import cell_truth, sample_scans
+
 from lidar3d.config import Config, SegmentationConfig, SensorConfig
 from lidar3d.errors import ConfigError
 from lidar3d.features import run_front_end

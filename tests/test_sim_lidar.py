@@ -99,7 +99,7 @@ def test_scan_fields_follow_the_driver_conventions(fast):
     np.testing.assert_array_equal(simulated.column, column)
     assert scan.range_m.min() >= fast.lidar_params.min_range_m and scan.range_m.max() <= sensor.max_range_m
     assert np.all(scan.intensity == np.rint(scan.intensity))
-    assert 0 <= scan.intensity.min() and scan.intensity.max() <= 255
+    assert scan.intensity.min() >= 0 and scan.intensity.max() <= 255
     np.testing.assert_allclose(simulated.T_world_lidar, fast.ground_truth.T_world_lidar[7])
 
 

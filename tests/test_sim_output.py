@@ -62,7 +62,12 @@ def test_bag_has_the_velodyne_pointcloud_layout(folder):
     assert message.header.stamp.sec * 10**9 + message.header.stamp.nanosec == log_time
     layout = {f.name: (f.offset, f.datatype, f.count) for f in message.fields}
     assert layout == {
-        "x": (0, 7, 1), "y": (4, 7, 1), "z": (8, 7, 1), "intensity": (16, 7, 1), "ring": (20, 4, 1), "time": (24, 7, 1),
+        "x": (0, 7, 1),
+        "y": (4, 7, 1),
+        "z": (8, 7, 1),
+        "intensity": (16, 7, 1),
+        "ring": (20, 4, 1),
+        "time": (24, 7, 1),
     }
     assert message.point_step == 32 and message.height == 1 and not message.is_bigendian
 

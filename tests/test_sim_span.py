@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from lidar3d.sim import GeoOrigin, SpanParams, Simulation
+from lidar3d.sim import GeoOrigin, Simulation, SpanParams
 from lidar3d.sim.output import write_simulation
 
 if sys.version_info >= (3, 11):
@@ -54,9 +54,16 @@ def parse(lines):
             assert len(f) == 23
             records.append(
                 dict(
-                    log=name, unix=unix, ins_status=f[0], pos_type=f[1], lat=float(f[2]), lon=float(f[3]),
-                    h=float(f[4]) + float(f[5]), vel_neu=np.array([float(v) for v in f[6:9]]),
-                    rpa=np.array([float(v) for v in f[9:12]]), sigma=np.array([float(v) for v in f[12:21]]),
+                    log=name,
+                    unix=unix,
+                    ins_status=f[0],
+                    pos_type=f[1],
+                    lat=float(f[2]),
+                    lon=float(f[3]),
+                    h=float(f[4]) + float(f[5]),
+                    vel_neu=np.array([float(v) for v in f[6:9]]),
+                    rpa=np.array([float(v) for v in f[9:12]]),
+                    sigma=np.array([float(v) for v in f[12:21]]),
                     ext=int(f[21], 16),
                 )
             )
@@ -64,8 +71,14 @@ def parse(lines):
             assert len(f) == 21 and f[0] == "SOL_COMPUTED" and f[6] == "WGS84"
             records.append(
                 dict(
-                    log=name, unix=unix, pos_type=f[1], lat=float(f[2]), lon=float(f[3]), h=float(f[4]) + float(f[5]),
-                    sigma=np.array([float(v) for v in f[7:10]]), n_svs=int(f[13]),
+                    log=name,
+                    unix=unix,
+                    pos_type=f[1],
+                    lat=float(f[2]),
+                    lon=float(f[3]),
+                    h=float(f[4]) + float(f[5]),
+                    sigma=np.array([float(v) for v in f[7:10]]),
+                    n_svs=int(f[13]),
                 )
             )
         else:

@@ -21,9 +21,24 @@ from lidar3d.summary import (
 
 # The keys of summary.json in order, as lidar3d wrote them before RunSummary existed.
 TOP_LEVEL_KEYS = [
-    "lidar3d_version", "inputs", "topic", "partial", "scans", "keyframes", "length_m", "duration_s",
-    "runtime_s", "scans_per_s", "stage_ms_median", "map_points", "loop_closures", "loop_candidates",
-    "loop_ms_total", "counts", "warnings", "pose_stamp",
+    "lidar3d_version",
+    "inputs",
+    "topic",
+    "partial",
+    "scans",
+    "keyframes",
+    "length_m",
+    "duration_s",
+    "runtime_s",
+    "scans_per_s",
+    "stage_ms_median",
+    "map_points",
+    "loop_closures",
+    "loop_candidates",
+    "loop_ms_total",
+    "counts",
+    "warnings",
+    "pose_stamp",
 ]
 
 
@@ -45,8 +60,17 @@ def example_summary(**changes) -> RunSummary:
         runtime_s=15.193,
         scans_per_s=5.27,
         stage_ms_median=StageMedians(
-            read=2.108, projection=10.995, ground=16.052, clustering=13.763, smoothness=1.574,
-            selection=14.833, deskew=2.862, odometry=20.118, mapping=70.647, map_update=17.915, redeskew=0.055,
+            read=2.108,
+            projection=10.995,
+            ground=16.052,
+            clustering=13.763,
+            smoothness=1.574,
+            selection=14.833,
+            deskew=2.862,
+            odometry=20.118,
+            mapping=70.647,
+            map_update=17.915,
+            redeskew=0.055,
         ),
         map_points=155082,
         loop_closures=2,
@@ -78,8 +102,9 @@ def example_summary(**changes) -> RunSummary:
         example_summary(),
         example_summary(evaluation=None, evaluation_error="evaluation against span.log failed: no overlap"),
         example_summary(input_stats=None, map_rebuild_s=None, evaluation=None, partial=True),
-        example_summary(evaluation=dataclasses.replace(
-            example_summary().evaluation, ate=AteSummary(*[error_summary(None, 0)] * 4))),
+        example_summary(
+            evaluation=dataclasses.replace(example_summary().evaluation, ate=AteSummary(*[error_summary(None, 0)] * 4))
+        ),
     ],
     ids=["complete", "evaluation-error", "checkpoint", "no-associated-pose"],
 )
@@ -165,8 +190,10 @@ def _broken(change) -> str:
         (lambda d: d["stage_ms_median"].update(tracking=1.0), "unknown key 'stage_ms_median.tracking'"),
         (lambda d: d["counts"].update(scans=-0.5), "'counts.scans' must be an integer, got -0.5"),
         (lambda d: d["input_stats"].pop("messages_lost"), "key 'input_stats.messages_lost' is missing"),
-        (lambda d: d["evaluation"]["ate"]["translation_3d_m"].update(rmse="x"),
-         "'evaluation.ate.translation_3d_m.rmse' must be a number or null, got \"x\""),
+        (
+            lambda d: d["evaluation"]["ate"]["translation_3d_m"].update(rmse="x"),
+            "'evaluation.ate.translation_3d_m.rmse' must be a number or null, got \"x\"",
+        ),
         (lambda d: d["evaluation"].update(table=None), "'evaluation.table' must be a string, got null"),
         (lambda d: d.update(evaluation_error=3), "'evaluation_error' must be a string, got 3"),
         (lambda d: d.update(scan_count=80), "unknown key 'scan_count'"),
@@ -190,4 +217,3 @@ def test_files_that_are_not_summaries(tmp_path):
     path.write_text("{}")
     with pytest.raises(Lidar3dError, match=r"summary\.json: key 'lidar3d_version' is missing$"):
         read_summary(path)
-

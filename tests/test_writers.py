@@ -137,9 +137,8 @@ def test_pcd_rejects_bad_shapes(tmp_path):
 def test_atomic_write_keeps_old_file_on_failure(tmp_path):
     path = tmp_path / "out.txt"
     write_text_atomic(path, "old\n")
-    with pytest.raises(RuntimeError):
-        with atomic_path(path) as tmp:
-            tmp.write_text("half")
-            raise RuntimeError("interrupted")
+    with pytest.raises(RuntimeError), atomic_path(path) as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("interrupted")
     assert path.read_text() == "old\n"
     assert [p.name for p in tmp_path.iterdir()] == ["out.txt"]

@@ -25,6 +25,7 @@ from lidar3d.batch.runner import BatchOutcome, default_workers, run_batch
 from lidar3d.batch.span_match import SpanMatch, match_span_logs
 
 __all__ = [
+    "ROW_FIELDS",
     "BagInput",
     "BagJob",
     "BatchOutcome",
@@ -33,7 +34,6 @@ __all__ = [
     "JobResult",
     "JobStatus",
     "ProgressDisplay",
-    "ROW_FIELDS",
     "ReportPaths",
     "SpanMatch",
     "content_fingerprint",

@@ -24,7 +24,7 @@ from pathlib import Path
 
 from lidar3d.errors import BagError
 
-__all__ = ["BagInput", "discover_bags", "bag_names"]
+__all__ = ["BagInput", "bag_names", "discover_bags"]
 
 _GLOB_CHARS = frozenset("*?[")
 _STORAGE_SUFFIXES = (".db3", ".mcap")

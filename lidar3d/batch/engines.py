@@ -309,7 +309,7 @@ def run_ray(
             job = in_flight.pop(ref)
             try:
                 sink.finished(ray.get(ref))
-            except Exception as err:  # noqa: BLE001 - Ray wraps every task failure; report it per bag
+            except Exception as err:
                 sink.finished(_ray_error_result(job, err))
 
     try:

@@ -51,7 +51,7 @@ def _files_of(path: Path) -> list[tuple[str, Path]]:
     return [("", path)]
 
 
-def _hash_file(digest: "hashlib._Hash", path: Path) -> None:
+def _hash_file(digest: hashlib._Hash, path: Path) -> None:
     size = path.stat().st_size
     digest.update(f"{size}\n".encode())
     with open(path, "rb") as handle:

@@ -39,11 +39,11 @@ from lidar3d.errors import SummaryError
 from lidar3d.summary import RunSummary, read_summary
 
 __all__ = [
+    "JOB_FILE",
+    "THREAD_VARIABLES",
     "BagJob",
     "JobResult",
     "JobStatus",
-    "JOB_FILE",
-    "THREAD_VARIABLES",
     "JobStopped",
     "limit_threads",
     "process_job",
@@ -167,7 +167,7 @@ def publish_folder(staging: Path, final: Path) -> None:
 def _replace_prefix(value: Any, old: str, new: str) -> Any:
     if isinstance(value, str):
         if value == old or value.startswith(old + os.sep):
-            return new + value[len(old):]
+            return new + value[len(old) :]
         return value
     if isinstance(value, list):
         return [_replace_prefix(v, old, new) for v in value]
@@ -283,7 +283,7 @@ def process_job(
         return result(JobStatus.INTERRUPTED, error=str(err) or "interrupted")
     except Lidar3dError as err:
         return result(JobStatus.FAILED, error=str(err))
-    except Exception as err:  # noqa: BLE001 - a bug on one bag must not stop the batch; keep the trace
+    except Exception as err:
         return result(JobStatus.FAILED, error=f"{type(err).__name__}: {err}", detail=traceback.format_exc())
     finally:
         if staging.exists():

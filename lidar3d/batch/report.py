@@ -282,7 +282,9 @@ def _html_text(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> st
         for f, h, k in _COLUMNS
     )
     body = "\n".join(
-        f'<tr class="bag" data-name="{esc(str(r["name"]))}">' + "".join(_cell(f, k, r) for f, _, k in _COLUMNS) + "</tr>"
+        f'<tr class="bag" data-name="{esc(str(r["name"]))}">'
+        + "".join(_cell(f, k, r) for f, _, k in _COLUMNS)
+        + "</tr>"
         for r in rows
     )
     totals = meta.get("totals", {})
@@ -293,15 +295,15 @@ def _html_text(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> st
     items.append(f"<li><b>{totals.get('length_m', 0.0):.1f}</b> m</li>")
     title = f"lidar3d batch report: {meta.get('out_dir', '')}"
     return (
-        "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n"
+        '<!DOCTYPE html>\n<html lang="en">\n<head>\n<meta charset="utf-8">\n'
         '<meta name="viewport" content="width=device-width, initial-scale=1">\n'
         f"<title>{esc(title)}</title>\n<style>{_CSS}</style>\n</head>\n<body>\n"
-        f"<h1>lidar3d batch report</h1>\n<p class=\"meta\">{esc(str(meta.get('out_dir', '')))} &middot; "
+        f'<h1>lidar3d batch report</h1>\n<p class="meta">{esc(str(meta.get("out_dir", "")))} &middot; '
         f"written {esc(str(meta.get('written_utc', '')))} &middot; engine {esc(str(meta.get('engine', '')))} &middot; "
         f"lidar3d {esc(str(meta.get('lidar3d_version', '')))}"
         + (" &middot; <b>interrupted</b>" if meta.get("interrupted") else "")
         + "</p>\n"
-        f"<ul class=\"totals\">{''.join(items)}</ul>\n"
+        f'<ul class="totals">{"".join(items)}</ul>\n'
         f'<table id="bags">\n<thead><tr>{heads}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>\n'
         f"<script>{_JS}</script>\n</body>\n</html>\n"
     )

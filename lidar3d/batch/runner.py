@@ -363,7 +363,11 @@ def run_batch(
             if todo:
                 if engine is Engine.LOCAL:
                     interrupted = run_local(
-                        todo, collector, workers=min(n_workers or 1, len(todo)), threads=threads, job_function=job_function
+                        todo,
+                        collector,
+                        workers=min(n_workers or 1, len(todo)),
+                        threads=threads,
+                        job_function=job_function,
                     )
                 else:
                     interrupted = run_ray(todo, collector, workers=n_workers, address=ray_address, threads=threads)

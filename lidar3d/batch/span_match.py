@@ -250,13 +250,17 @@ def match_span_logs(
         raise ConfigError("give --span-dir or --span-pattern, not both")
     if span_dir is None and span_pattern is None:
         return {bag.name: SpanMatch(None, "no SPAN log requested") for bag in bags}
-    ranges = _Ranges(cache or TimeRangeCache(None), gnss_config or GnssConfig(), fingerprints if fingerprints is not None else {})
+    ranges = _Ranges(
+        cache or TimeRangeCache(None), gnss_config or GnssConfig(), fingerprints if fingerprints is not None else {}
+    )
     matches: dict[str, SpanMatch] = {}
     if span_pattern is not None:
         for bag in bags:
             expanded = expand_pattern(span_pattern, bag)
-            files = sorted(Path(p) for p in glob.glob(expanded) if Path(p).is_file()) if glob.has_magic(expanded) else (
-                [Path(expanded)] if Path(expanded).is_file() else []
+            files = (
+                sorted(Path(p) for p in glob.glob(expanded) if Path(p).is_file())
+                if glob.has_magic(expanded)
+                else ([Path(expanded)] if Path(expanded).is_file() else [])
             )
             if not files:
                 matches[bag.name] = SpanMatch(None, f"no file {expanded}")
@@ -266,10 +270,14 @@ def match_span_logs(
                 bag_range = ranges.bag(bag.path)
                 best = _best_by_overlap(bag_range, [(f, ranges.log(f)) for f in files])
                 if best is None:
-                    matches[bag.name] = SpanMatch(None, f"{len(files)} files match {expanded}, none overlaps the bag in time")
+                    matches[bag.name] = SpanMatch(
+                        None, f"{len(files)} files match {expanded}, none overlaps the bag in time"
+                    )
                 else:
                     assert bag_range is not None
-                    matches[bag.name] = SpanMatch(best[0].resolve(), f"pattern, {_describe_overlap(best[1], bag_range)}")
+                    matches[bag.name] = SpanMatch(
+                        best[0].resolve(), f"pattern, {_describe_overlap(best[1], bag_range)}"
+                    )
     else:
         candidates = _log_candidates(Path(span_dir))
         logs = [(path.resolve(), ranges.log(path)) for path in candidates]

@@ -37,7 +37,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     span.add_argument("--span-pattern", metavar="PATTERN", help="SPAN log path per bag, e.g. '{stem}.gps'")
     parser.add_argument("--extrinsics", metavar="FILE", help="lidar-to-IMU extrinsic file (or per-bag pattern)")
     parser.add_argument("--workers", type=int, metavar="N", help="bags in parallel (default: all CPUs)")
-    parser.add_argument("--engine", choices=("local", "ray"), default="local", help="local process pool (default) or Ray")
+    parser.add_argument(
+        "--engine", choices=("local", "ray"), default="local", help="local process pool (default) or Ray"
+    )
     parser.add_argument("--ray-address", metavar="ADDR", help="existing Ray cluster ('auto', 'ray://host:10001')")
     parser.add_argument("--config", metavar="FILE", help="TOML configuration for every bag (see 'lidar3d config')")
     parser.add_argument("--force", action="store_true", help="redo bags that are already up to date")

@@ -38,11 +38,18 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--align", choices=("se3", "yaw", "none"), default=None, help="alignment (default: config, se3)"
     )
     parser.add_argument(
-        "--time-offset", type=float, default=None, metavar="S",
+        "--time-offset",
+        type=float,
+        default=None,
+        metavar="S",
         help="bag clock minus GPS-derived UNIX time, seconds (default: config, 0)",
     )
     parser.add_argument(
-        "--origin", type=float, nargs=3, metavar=("LAT", "LON", "H"), default=None,
+        "--origin",
+        type=float,
+        nargs=3,
+        metavar=("LAT", "LON", "H"),
+        default=None,
         help="ENU origin: WGS84 degrees and ellipsoidal height in m (default: config, else the first good fix)",
     )
     parser.add_argument("--config", metavar="FILE", help="TOML configuration ([gnss] section)")

@@ -50,7 +50,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s) or ROS2 bag folder")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(
-        "--scans", type=_scan_range, default=(0, None), metavar="A:B",
+        "--scans",
+        type=_scan_range,
+        default=(0, None),
+        metavar="A:B",
         help="scan indices A (inclusive) to B (exclusive); default: all",
     )
     parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one)")
@@ -111,8 +114,13 @@ def export_front_end(
             write_front_end_scan(out_dir / f"scan_{index:06d}", result)
             written.append(index)
             timings.append(result.stage_ms)
-            log.debug("scan %d: %.1f ms, %d sharp, %d flat", index, result.total_ms,
-                      len(result.features.sharp), len(result.features.flat))
+            log.debug(
+                "scan %d: %.1f ms, %d sharp, %d flat",
+                index,
+                result.total_ms,
+                len(result.features.sharp),
+                len(result.features.flat),
+            )
     if not written:
         log.warning("no scan in the range %d:%s (%d scan(s) read)", start, "" if stop is None else stop, n_scans)
         return FeaturesExportSummary(scan_indices=(), median_stage_ms=dict.fromkeys(STAGES, 0.0), median_total_ms=0.0)

@@ -35,16 +35,32 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("scenario", nargs="?", default="loop", choices=sorted(SCENARIO_HELP), metavar="SCENARIO",
-                        help="scenario name (default: loop)")
+    parser.add_argument(
+        "scenario",
+        nargs="?",
+        default="loop",
+        choices=sorted(SCENARIO_HELP),
+        metavar="SCENARIO",
+        help="scenario name (default: loop)",
+    )
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--seed", type=int, default=0, help="world, noise and GNSS error seed (default: 0)")
-    parser.add_argument("--duration", type=float, default=None, metavar="S",
-                        help="simulate only the first S seconds (default: the whole route)")
-    parser.add_argument("--format", choices=("ros1", "ros2", "ros2-mcap"), default="ros1",
-                        help="bag format; ros2 uses sqlite3 storage (default: ros1)")
-    parser.add_argument("--sensor", choices=("vlp16", "hdl32e", "vlp32c"), default="vlp16",
-                        help="sensor preset (default: vlp16)")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        metavar="S",
+        help="simulate only the first S seconds (default: the whole route)",
+    )
+    parser.add_argument(
+        "--format",
+        choices=("ros1", "ros2", "ros2-mcap"),
+        default="ros1",
+        help="bag format; ros2 uses sqlite3 storage (default: ros1)",
+    )
+    parser.add_argument(
+        "--sensor", choices=("vlp16", "hdl32e", "vlp32c"), default="vlp16", help="sensor preset (default: vlp16)"
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace the outputs of an earlier run in DIR")
     parser.set_defaults(func=run)
 

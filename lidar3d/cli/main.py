@@ -17,7 +17,7 @@ from collections.abc import Sequence
 from lidar3d import __version__
 from lidar3d.errors import Lidar3dError
 
-__all__ = ["main", "entry_point", "build_parser"]
+__all__ = ["build_parser", "entry_point", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -70,5 +70,5 @@ class ProgressSafeHandler(logging.StreamHandler):
             self.flush()
         except RecursionError:
             raise
-        except Exception:  # noqa: BLE001 - a handler reports its own failures through handleError, as logging's do
+        except Exception:
             self.handleError(record)

@@ -138,8 +138,14 @@ def top_view_png(
         if max(c.query, c.match) >= len(keyframe_positions_m):
             continue
         a, b = keyframe_positions_m[c.match], keyframe_positions_m[c.query]
-        ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="tab:orange", lw=2.0,
-                label=None if labelled else f"loop closures ({len(accepted)})")
+        ax.plot(
+            [a[0], b[0]],
+            [a[1], b[1]],
+            "-",
+            color="tab:orange",
+            lw=2.0,
+            label=None if labelled else f"loop closures ({len(accepted)})",
+        )
         ax.plot([a[0], b[0]], [a[1], b[1]], "o", color="tab:orange", ms=3)
         labelled = True
     ax.set_aspect("equal", adjustable="datalim")

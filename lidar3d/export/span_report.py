@@ -94,7 +94,8 @@ def span_report_dict(result: SpanEvaluation) -> dict:
                 "solutions_in_log": ref.n_solutions,
                 "solutions_kept": len(ref),
                 "span_s": list(ref.span_s),
-                "median_std_enu_m": np.nanmedian(ref.std_enu_m, axis=0) if np.isfinite(ref.std_enu_m).any()
+                "median_std_enu_m": np.nanmedian(ref.std_enu_m, axis=0)
+                if np.isfinite(ref.std_enu_m).any()
                 else [None, None, None],
             },
             "association": {
@@ -166,11 +167,16 @@ def _all_solutions(result: SpanEvaluation) -> tuple[np.ndarray, np.ndarray, np.n
     if not messages:
         return np.zeros((0, 3)), np.zeros(0, dtype=object), np.zeros(0, dtype=bool)
     enu = LocalEnu(ref.origin).to_enu(
-        [m.latitude_deg for m in messages], [m.longitude_deg for m in messages],
+        [m.latitude_deg for m in messages],
+        [m.longitude_deg for m in messages],
         [m.height_ellipsoid_m for m in messages],
     )
-    stamps = gps_to_unix_ns([m.gps_week for m in messages], [m.gps_seconds for m in messages],
-                            result.config.leap_seconds, result.config.time_offset_s)
+    stamps = gps_to_unix_ns(
+        [m.gps_week for m in messages],
+        [m.gps_seconds for m in messages],
+        result.config.leap_seconds,
+        result.config.time_offset_s,
+    )
     kept = np.isin(stamps, ref.stamps_ns)
     if ref.source_log == "INSPVAX":
         codes = [-1 if m.position_type is None else int(m.position_type) for m in messages]
@@ -205,10 +211,23 @@ def _plots(result: SpanEvaluation) -> dict[str, bytes]:
         for kept, marker, suffix in ((True, "o", ""), (False, "x", " (rejected: INS status / time)")):
             mask = (all_classes == label) & (all_kept == kept)
             if mask.any():
-                ax.scatter(all_enu[mask, 0], all_enu[mask, 1], s=6, marker=marker, linewidths=0.6,
-                           c=_QUALITY_COLOURS[label], label=f"{result.reference.source_log}: {label}{suffix}")
-    ax.plot(_broken(est_p[:, 0], ev), _broken(est_p[:, 1], ev), "-", color="black", linewidth=0.8,
-            label=f"estimate ({ev.alignment.value}), associated poses")
+                ax.scatter(
+                    all_enu[mask, 0],
+                    all_enu[mask, 1],
+                    s=6,
+                    marker=marker,
+                    linewidths=0.6,
+                    c=_QUALITY_COLOURS[label],
+                    label=f"{result.reference.source_log}: {label}{suffix}",
+                )
+    ax.plot(
+        _broken(est_p[:, 0], ev),
+        _broken(est_p[:, 1], ev),
+        "-",
+        color="black",
+        linewidth=0.8,
+        label=f"estimate ({ev.alignment.value}), associated poses",
+    )
     ax.set_xlabel("east [m]")
     ax.set_ylabel("north [m]")
     ax.set_aspect("equal", adjustable="datalim")

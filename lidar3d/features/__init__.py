@@ -18,17 +18,17 @@ from lidar3d.features.selection import select_features, suppression_spans, voxel
 from lidar3d.features.smoothness import compute_smoothness
 
 __all__ = [
+    "STAGES",
     "FeatureCloud",
     "FeatureSet",
-    "Smoothness",
     "FrontEndResult",
     "PreparedScan",
-    "STAGES",
+    "Smoothness",
     "compute_smoothness",
-    "select_features",
     "extract_features",
-    "run_front_end",
     "prepare_scan",
+    "run_front_end",
+    "select_features",
     "suppression_spans",
     "voxel_centroids_per_ring",
 ]

@@ -25,7 +25,7 @@ from lidar3d.segmentation import (
     usable_rows,
 )
 
-__all__ = ["FrontEndResult", "PreparedScan", "STAGES", "extract_features", "prepare_scan", "run_front_end"]
+__all__ = ["STAGES", "FrontEndResult", "PreparedScan", "extract_features", "prepare_scan", "run_front_end"]
 
 STAGES = ("projection", "ground", "clustering", "smoothness", "selection")
 """Names of the timed sub-stages, in order, as keys of :attr:`FrontEndResult.stage_ms`."""
@@ -80,7 +80,9 @@ def run_front_end(scan: Scan, config: Config) -> FrontEndResult:
     t4 = clock()
     features = select_features(segmentation, smoothness, config.features)
     t5 = clock()
-    stage_ms.update(ground=(t2 - t1) * 1e3, clustering=(t3 - t2) * 1e3, smoothness=(t4 - t3) * 1e3, selection=(t5 - t4) * 1e3)
+    stage_ms.update(
+        ground=(t2 - t1) * 1e3, clustering=(t3 - t2) * 1e3, smoothness=(t4 - t3) * 1e3, selection=(t5 - t4) * 1e3
+    )
     return FrontEndResult(segmentation=segmentation, features=features, stage_ms=stage_ms)
 
 

@@ -11,8 +11,6 @@ from lidar3d.records import readonly
 __all__ = ["FeatureCloud", "FeatureSet", "Smoothness"]
 
 
-
-
 @dataclass(frozen=True, slots=True)
 class FeatureCloud:
     """One class of feature points of a scan.
@@ -48,7 +46,7 @@ class FeatureCloud:
         return int(self.points.shape[0])
 
     @classmethod
-    def empty(cls) -> "FeatureCloud":
+    def empty(cls) -> FeatureCloud:
         return cls(points=np.zeros((0, 3)), ring=np.zeros(0, dtype=np.uint16), time_offset_s=np.zeros(0))
 
 
@@ -84,7 +82,7 @@ class FeatureSet:
         return not (len(self.sharp) or len(self.less_sharp) or len(self.flat) or len(self.less_flat))
 
     @classmethod
-    def empty(cls, stamp_ns: int) -> "FeatureSet":
+    def empty(cls, stamp_ns: int) -> FeatureSet:
         none = FeatureCloud.empty()
         return cls(stamp_ns=stamp_ns, sharp=none, less_sharp=none, flat=none, less_flat=none, outliers=none)
 

@@ -29,7 +29,9 @@ from lidar3d.segmentation.segment import Segmentation
 __all__ = ["select_features", "suppression_spans", "voxel_centroids_per_ring"]
 
 
-def suppression_spans(segmentation: Segmentation, half_window: int, max_column_gap: int) -> tuple[np.ndarray, np.ndarray]:
+def suppression_spans(
+    segmentation: Segmentation, half_window: int, max_column_gap: int
+) -> tuple[np.ndarray, np.ndarray]:
     """(M,) int64 ``lo`` and ``hi``: picking point i marks ``[lo[i], hi[i])`` as picked.
 
     The span reaches up to ``half_window`` points either side of i, stopping before the first pair

@@ -38,7 +38,7 @@ from lidar3d.gnss.novatel import (
     enum_from_name,
 )
 
-__all__ = ["MessageRejected", "decode_ascii_message", "ASCII_LOGS"]
+__all__ = ["ASCII_LOGS", "MessageRejected", "decode_ascii_message"]
 
 # ASCII log name without the trailing "A" -> canonical log name.
 ASCII_LOGS = {
@@ -105,9 +105,7 @@ def decode_ascii_message(raw: bytes) -> tuple[str, SpanMessage | None]:
     expected_header = _SHORT_HEADER_FIELDS if short else _LONG_HEADER_FIELDS
     name_full = header[0]
     if len(header) != expected_header:
-        raise MessageRejected(
-            "format", f"{name_full}: {len(header)} header fields, expected {expected_header}"
-        )
+        raise MessageRejected("format", f"{name_full}: {len(header)} header fields, expected {expected_header}")
     if not name_full.endswith("A"):
         raise MessageRejected("format", f"{name_full}: not an ASCII log name (no trailing 'A')")
     name = name_full[:-1]

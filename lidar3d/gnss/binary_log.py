@@ -31,7 +31,7 @@ from lidar3d.gnss.novatel import (
     TimeStatus,
 )
 
-__all__ = ["BinaryHeader", "BINARY_LOGS", "LONG_SYNC", "SHORT_SYNC", "frame_length", "decode_binary_frame"]
+__all__ = ["BINARY_LOGS", "LONG_SYNC", "SHORT_SYNC", "BinaryHeader", "decode_binary_frame", "frame_length"]
 
 LONG_SYNC = b"\xaa\x44\x12"
 SHORT_SYNC = b"\xaa\x44\x13"
@@ -51,9 +51,19 @@ BINARY_LOGS = {
 
 # Names of other logs a SPAN stream carries, so that counts of ignored logs are readable.
 _OTHER_LOG_NAMES = {
-    99: "BESTVEL", 101: "TIME", 241: "BESTXYZ", 264: "INSCOV", 320: "INSCOVS", 726: "BESTUTM",
-    812: "CORRIMUDATA", 813: "CORRIMUDATAS", 1163: "PSRDOP2", 1335: "HEADING2", 1362: "IMURATECORRIMUS",
-    1945: "INSCONFIG", 2264: "CORRIMUS",
+    99: "BESTVEL",
+    101: "TIME",
+    241: "BESTXYZ",
+    264: "INSCOV",
+    320: "INSCOVS",
+    726: "BESTUTM",
+    812: "CORRIMUDATA",
+    813: "CORRIMUDATAS",
+    1163: "PSRDOP2",
+    1335: "HEADING2",
+    1362: "IMURATECORRIMUS",
+    1945: "INSCONFIG",
+    2264: "CORRIMUS",
 }
 
 _INSPVA = struct.Struct("<Id3d3d3dI")  # week, seconds, lat lon h, vn ve vu, roll pitch azimuth, status
@@ -194,8 +204,24 @@ def _inspvax(body: bytes, week: int, seconds: float, time_status: TimeStatus | N
 
 
 def _bestpos(log: str, body: bytes, week: int, seconds: float, time_status: TimeStatus | None) -> PositionMessage:
-    (sol, pos_type, lat, lon, h_msl, undulation, datum, lat_sd, lon_sd, h_sd, station, diff_age, sol_age,
-     n_tracked, n_used, *_rest) = _BESTPOS.unpack(body)
+    (
+        sol,
+        pos_type,
+        lat,
+        lon,
+        h_msl,
+        undulation,
+        datum,
+        lat_sd,
+        lon_sd,
+        h_sd,
+        station,
+        diff_age,
+        sol_age,
+        n_tracked,
+        n_used,
+        *_rest,
+    ) = _BESTPOS.unpack(body)
     return PositionMessage(
         log=log,
         gps_week=week,

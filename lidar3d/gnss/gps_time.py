@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["GPS_EPOCH_UNIX_S", "SECONDS_PER_WEEK", "DEFAULT_LEAP_SECONDS", "gps_to_unix_ns", "unix_ns_to_gps"]
+__all__ = ["DEFAULT_LEAP_SECONDS", "GPS_EPOCH_UNIX_S", "SECONDS_PER_WEEK", "gps_to_unix_ns", "unix_ns_to_gps"]
 
 GPS_EPOCH_UNIX_S = 315_964_800
 SECONDS_PER_WEEK = 604_800

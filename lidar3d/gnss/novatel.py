@@ -14,25 +14,26 @@ from __future__ import annotations
 
 import enum
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import Mapping, TypeVar, Union
+from typing import TypeVar, Union
 
 __all__ = [
-    "TimeStatus",
-    "InsStatus",
-    "PositionType",
-    "SolutionStatus",
-    "enum_from_name",
-    "quality_class",
+    "DATUM_NAMES",
     "QUALITY_CLASSES",
     "InsPvaMessage",
-    "PositionMessage",
+    "InsStatus",
     "InsStdDevMessage",
-    "SpanMessage",
     "LogStats",
+    "PositionMessage",
+    "PositionType",
+    "SolutionStatus",
     "SpanLog",
-    "DATUM_NAMES",
+    "SpanMessage",
+    "TimeStatus",
+    "enum_from_name",
+    "quality_class",
 ]
 
 
@@ -163,8 +164,16 @@ QUALITY_CLASSES = ("RTK fixed", "RTK float", "PPP", "DGNSS/SBAS", "single", "INS
 _QUALITY = {
     "RTK fixed": {"NARROW_INT", "WIDE_INT", "L1_INT", "INS_RTKFIXED", "RTK_DIRECT_INS", "FIXEDPOS"},
     "RTK float": {"L1_FLOAT", "NARROW_FLOAT", "INS_RTKFLOAT", "FLOATCONV", "WIDELANE", "NARROWLANE"},
-    "PPP": {"PPP", "INS_PPP", "PPP_BASIC", "INS_PPP_BASIC", "PPP_CONVERGING", "INS_PPP_CONVERGING",
-            "PPP_BASIC_CONVERGING", "INS_PPP_BASIC_CONVERGING"},
+    "PPP": {
+        "PPP",
+        "INS_PPP",
+        "PPP_BASIC",
+        "INS_PPP_BASIC",
+        "PPP_CONVERGING",
+        "INS_PPP_CONVERGING",
+        "PPP_BASIC_CONVERGING",
+        "INS_PPP_BASIC_CONVERGING",
+    },
     "DGNSS/SBAS": {"PSRDIFF", "WAAS", "INS_PSRDIFF", "INS_SBAS"},
     "single": {"SINGLE", "INS_PSRSP"},
 }

@@ -28,7 +28,7 @@ from lidar3d.gnss.binary_log import decode_binary_frame, frame_length
 from lidar3d.gnss.crc import novatel_crc32
 from lidar3d.gnss.novatel import InsPvaMessage, InsStdDevMessage, LogStats, PositionMessage, SpanLog
 
-__all__ = ["read_span_log", "parse_span_bytes"]
+__all__ = ["parse_span_bytes", "read_span_log"]
 
 logger = logging.getLogger(__name__)
 

@@ -30,7 +30,7 @@ from lidar3d.gnss.gps_time import gps_to_unix_ns
 from lidar3d.gnss.novatel import InsPvaMessage, InsStatus, SpanLog, TimeStatus, enum_from_name
 from lidar3d.records import Trajectory
 
-__all__ = ["InsReference", "span_reference", "accepted_statuses", "origin_from_config"]
+__all__ = ["InsReference", "accepted_statuses", "origin_from_config", "span_reference"]
 
 logger = logging.getLogger(__name__)
 
@@ -150,8 +150,7 @@ def span_reference(
     source, messages = _choose_source(log.ins)
     if not messages:
         raise GnssError(
-            f"{name}: no usable pose: no INS solution (INSPVA, INSPVAS or INSPVAX) in the log "
-            f"({log.stats.summary()})"
+            f"{name}: no usable pose: no INS solution (INSPVA, INSPVAS or INSPVAX) in the log ({log.stats.summary()})"
         )
     accepted = accepted_statuses(config.accepted_ins_statuses)
     good_status = [m for m in messages if m.ins_status in accepted]

@@ -38,15 +38,15 @@ from lidar3d.io.ros1_recovery import ROS1_MAGIC, Ros1Recovery
 
 __all__ = [
     "BagFormat",
-    "TopicInfo",
     "BagInput",
     "Ros1BagInput",
     "Ros2BagInput",
-    "open_bag_input",
-    "merge_topics",
-    "merge_by_log_time",
-    "merged_messages",
+    "TopicInfo",
     "log_time_span",
+    "merge_by_log_time",
+    "merge_topics",
+    "merged_messages",
+    "open_bag_input",
 ]
 
 logger = logging.getLogger(__name__)
@@ -218,10 +218,8 @@ def _expected_counts(folder: Path) -> dict[str, int]:
         from ruamel.yaml import YAML
 
         info = YAML(typ="safe").load(meta.read_text())["rosbag2_bagfile_information"]
-        return {
-            t["topic_metadata"]["name"]: int(t["message_count"]) for t in info["topics_with_message_count"]
-        }
-    except Exception:  # noqa: BLE001 - an unreadable metadata file only loses the lost-count
+        return {t["topic_metadata"]["name"]: int(t["message_count"]) for t in info["topics_with_message_count"]}
+    except Exception:
         return {}
 
 
@@ -326,7 +324,7 @@ class Ros2BagInput(BagInput):
         for reader in readers:
             try:
                 reader.close()
-            except Exception:  # noqa: BLE001 - closing a half-opened reader must not mask the cause
+            except Exception:
                 logger.debug("%s: error while closing", self.path, exc_info=True)
 
 

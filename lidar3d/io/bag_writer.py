@@ -22,7 +22,7 @@ from lidar3d.errors import OutputError
 from lidar3d.io.pointcloud2 import POINTCLOUD2_TYPE, PointCloud2Parts, encode_scan, parts_to_message
 from lidar3d.records import Scan
 
-__all__ = ["BagStorage", "write_scan_bag", "write_cloud_bag"]
+__all__ = ["BagStorage", "write_cloud_bag", "write_scan_bag"]
 
 logger = logging.getLogger(__name__)
 

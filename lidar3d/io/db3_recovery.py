@@ -22,7 +22,7 @@ from pathlib import Path
 
 from lidar3d.errors import BagError
 
-__all__ = ["Db3Recovery", "db3_is_truncated", "SQLITE_MAGIC"]
+__all__ = ["SQLITE_MAGIC", "Db3Recovery", "db3_is_truncated"]
 
 logger = logging.getLogger(__name__)
 

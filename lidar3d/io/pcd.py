@@ -9,7 +9,7 @@ import numpy as np
 from lidar3d.errors import OutputError
 from lidar3d.io.atomic import atomic_path, write_text_atomic
 
-__all__ = ["write_pcd", "read_pcd"]
+__all__ = ["read_pcd", "write_pcd"]
 
 
 def write_pcd(path: str | Path, points: np.ndarray, **fields: np.ndarray) -> None:

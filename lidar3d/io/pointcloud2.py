@@ -41,24 +41,24 @@ from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, SensorModel
 
 __all__ = [
+    "ABSOLUTE_TIME_THRESHOLD_S",
+    "INTENSITY_FIELD_NAMES",
     "POINTCLOUD2_TYPE",
-    "PointFieldType",
-    "PointField",
-    "PointCloud2Parts",
-    "DecodeStats",
+    "RING_FIELD_NAMES",
+    "RING_ORDER_MIN_CORRELATION",
+    "TIME_FIELD_NAMES",
     "VELODYNE_FIELDS",
     "VELODYNE_POINT_STEP",
-    "ABSOLUTE_TIME_THRESHOLD_S",
-    "encode_scan",
-    "parts_to_message",
-    "parts_from_message",
+    "DecodeStats",
+    "PointCloud2Parts",
+    "PointField",
+    "PointFieldType",
     "decode_parts",
-    "time_from_azimuth",
+    "encode_scan",
+    "parts_from_message",
+    "parts_to_message",
     "ring_table_from_elevation",
-    "RING_ORDER_MIN_CORRELATION",
-    "RING_FIELD_NAMES",
-    "TIME_FIELD_NAMES",
-    "INTENSITY_FIELD_NAMES",
+    "time_from_azimuth",
 ]
 
 logger = logging.getLogger(__name__)
@@ -219,7 +219,9 @@ def parts_to_message(parts: PointCloud2Parts, typestore: Any) -> Any:
         header=header,
         height=parts.height,
         width=parts.width,
-        fields=[field_type(name=f.name, offset=f.offset, datatype=int(f.datatype), count=f.count) for f in parts.fields],
+        fields=[
+            field_type(name=f.name, offset=f.offset, datatype=int(f.datatype), count=f.count) for f in parts.fields
+        ],
         is_bigendian=parts.is_bigendian,
         point_step=parts.point_step,
         row_step=parts.row_step,
@@ -292,8 +294,7 @@ def _point_records(parts: PointCloud2Parts, dtype: np.dtype) -> np.ndarray:
         # exact length width*height*point_step, allowing trailing row padding of one row.
         if data.size != expected and not (height == 1 and data.size == row_step and row_step >= expected):
             raise PointCloudError(
-                f"data holds {data.size} bytes but width*height*point_step = "
-                f"{width}*{height}*{step} = {expected}"
+                f"data holds {data.size} bytes but width*height*point_step = {width}*{height}*{step} = {expected}"
             )
         return np.frombuffer(data, dtype=dtype, count=height * width)
     if row_step < width * step:
@@ -389,9 +390,7 @@ def decode_parts(
     by_name = {f.name: f for f in parts.fields}
     missing = [axis for axis in ("x", "y", "z") if axis not in by_name]
     if missing:
-        raise PointCloudError(
-            f"cloud has no {'/'.join(missing)} field (fields: {', '.join(by_name) or 'none'})"
-        )
+        raise PointCloudError(f"cloud has no {'/'.join(missing)} field (fields: {', '.join(by_name) or 'none'})")
     wanted: dict[str, PointField] = {axis: by_name[axis] for axis in ("x", "y", "z")}
     roles = {"intensity": INTENSITY_FIELD_NAMES, "ring": RING_FIELD_NAMES, "time": TIME_FIELD_NAMES}
     for role, names in roles.items():
@@ -443,7 +442,11 @@ def decode_parts(
     if not all_kept:
         logger.debug(
             "cloud at %d ns: dropped %d non-finite and %d points nearer than %.2f m of %d",
-            parts.stamp_ns, n_nonfinite, n_near, min_range_m, n_input,
+            parts.stamp_ns,
+            n_nonfinite,
+            n_near,
+            min_range_m,
+            n_input,
         )
     scan = Scan(stamp_ns=parts.stamp_ns, points=points, intensity=intensity, ring=ring, time_offset_s=time_s)
     return scan, stats

@@ -29,7 +29,7 @@ from io import BytesIO
 from pathlib import Path
 from typing import BinaryIO
 
-__all__ = ["Ros1Connection", "Ros1Recovery", "ROS1_MAGIC"]
+__all__ = ["ROS1_MAGIC", "Ros1Connection", "Ros1Recovery"]
 
 logger = logging.getLogger(__name__)
 

@@ -118,7 +118,10 @@ class ScanDecoder:
             if self._ring_table is not None:
                 logger.info(
                     "%s: the ring field of %s does not count up from the lowest beam; "
-                    "renumbering it by elevation with the %s table", self.label, self.topic, self.sensor.name,
+                    "renumbering it by elevation with the %s table",
+                    self.label,
+                    self.topic,
+                    self.sensor.name,
                 )
                 scan, stats = self._decode(parts)
         return scan, stats

@@ -33,7 +33,7 @@ from lidar3d.io.scan_decoder import ScanDecoder, deserialize_cloud
 from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, SensorModel
 
-__all__ = ["ReadStats", "ScanSource", "open_scan_source", "choose_lidar_topic", "bag_label"]
+__all__ = ["ReadStats", "ScanSource", "bag_label", "choose_lidar_topic", "open_scan_source"]
 
 logger = logging.getLogger(__name__)
 
@@ -179,8 +179,12 @@ class ScanSource:
         if self._stats.n_scans:
             logger.info(
                 "read %d scans from %s: %d points kept, %d non-finite and %d nearer than %.2f m dropped",
-                self._stats.n_scans, self.label, self._stats.n_points_kept, self._stats.n_nonfinite,
-                self._stats.n_below_min_range, self.min_range_m,
+                self._stats.n_scans,
+                self.label,
+                self._stats.n_points_kept,
+                self._stats.n_nonfinite,
+                self._stats.n_below_min_range,
+                self.min_range_m,
             )
 
     def __enter__(self) -> ScanSource:

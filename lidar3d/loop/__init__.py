@@ -13,15 +13,15 @@ from lidar3d.loop.verification import LoopVerification, build_match_cloud, verif
 
 __all__ = [
     "CandidateSet",
-    "find_candidates",
+    "GraphEdge",
+    "LoopCandidate",
     "LoopCloser",
     "LoopUpdate",
-    "correct_scan_poses",
-    "GraphEdge",
-    "PoseGraph",
-    "LoopCandidate",
-    "Verdict",
     "LoopVerification",
+    "PoseGraph",
+    "Verdict",
     "build_match_cloud",
+    "correct_scan_poses",
+    "find_candidates",
     "verify_loop",
 ]

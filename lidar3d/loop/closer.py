@@ -30,7 +30,7 @@ from lidar3d.loop.records import LoopCandidate, Verdict
 from lidar3d.loop.verification import build_match_cloud, verify_loop
 from lidar3d.mapping.se3 import interpolate_poses, invert, nearest_rigid
 
-__all__ = ["LoopUpdate", "LoopCloser", "correct_scan_poses"]
+__all__ = ["LoopCloser", "LoopUpdate", "correct_scan_poses"]
 
 log = logging.getLogger(__name__)
 
@@ -228,7 +228,10 @@ class LoopCloser:
         for record in accepted:
             log.info(
                 "loop closed: keyframe %d -> %d (%.1f s apart), %s",
-                record.query, record.match, record.time_gap_s, record.reason,
+                record.query,
+                record.match,
+                record.time_gap_s,
+                record.reason,
             )
         return LoopUpdate(new_poses, poses.copy(), tuple(accepted), tuple(records))
 

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Verdict", "LoopCandidate"]
+__all__ = ["LoopCandidate", "Verdict"]
 
 
 class Verdict(str, enum.Enum):

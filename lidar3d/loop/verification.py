@@ -49,10 +49,10 @@ from lidar3d.mapping.voxel import voxel_downsample, voxel_keys
 __all__ = [
     "LoopVerification",
     "build_match_cloud",
-    "point_information",
     "loop_information",
-    "voxel_overlap",
+    "point_information",
     "verify_loop",
+    "voxel_overlap",
 ]
 
 _RMSE_FLOOR_M = 0.01  # σ never below 1 cm when the inlier RMSE scales the information
@@ -245,7 +245,9 @@ def verify_loop(
             Verdict.TOO_FEW_POINTS,
             f"{n_source} source / {n_target} target points "
             f"(need {config.min_source_points} / {config.min_target_points})",
-            T_guess, n_source, n_target,
+            T_guess,
+            n_source,
+            n_target,
         )
     if not (np.isfinite(source).all() and np.isfinite(target).all() and np.isfinite(T_guess).all()):
         return _rejected(Verdict.NOT_CONVERGED, "non-finite points or initial guess", T_guess, n_source, n_target)
@@ -255,9 +257,7 @@ def verify_loop(
     target_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target))
     method = config.icp_method
     if method == "point_to_plane":
-        target_cloud.estimate_normals(
-            o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=20)
-        )
+        target_cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=20))
         estimation = registration.TransformationEstimationPointToPlane()
 
         def run(distance: float, T: np.ndarray, iterations: int):
@@ -289,7 +289,9 @@ def verify_loop(
             return _rejected(
                 Verdict.NOT_CONVERGED,
                 f"ICP lost its correspondences at {distance:g} m",
-                T_guess, n_source, n_target,
+                T_guess,
+                n_source,
+                n_target,
             )
         T = nearest_rigid(np.array(result.transformation))
     final_distance = float(config.icp_max_correspondence_m[-1])
@@ -300,14 +302,18 @@ def verify_loop(
     rmse = float(result.inlier_rmse)
     aligned = transform_points(T, source)
     overlap = voxel_overlap(aligned, target, config.overlap_voxel_m)
-    metrics = dict(fitness=fitness, inlier_rmse_m=rmse, overlap=overlap, correction_m=correction_m,
-                   correction_deg=correction_deg)
+    metrics = dict(
+        fitness=fitness, inlier_rmse_m=rmse, overlap=overlap, correction_m=correction_m, correction_deg=correction_deg
+    )
     limit_m = config.max_correction_m if max_correction_m is None else max_correction_m
     if moved_m > _CONVERGED_M or moved_deg > _CONVERGED_DEG:
         return _rejected(
             Verdict.NOT_CONVERGED,
             f"ICP still moving: {moved_m:.3f} m / {moved_deg:.2f} deg in a last pass",
-            T, n_source, n_target, **metrics,
+            T,
+            n_source,
+            n_target,
+            **metrics,
         )
     sizes = (T, n_source, n_target)
     if fitness < config.min_fitness:
@@ -321,7 +327,10 @@ def verify_loop(
             Verdict.LARGE_CORRECTION,
             f"ICP moved {correction_m:.2f} m / {correction_deg:.1f} deg from the guess "
             f"(limit {limit_m:.2f} m / {config.max_correction_deg:g} deg)",
-            T, n_source, n_target, **metrics,
+            T,
+            n_source,
+            n_target,
+            **metrics,
         )
     matched = source[np.asarray(result.correspondence_set)[:, 0]]
     information = loop_information(

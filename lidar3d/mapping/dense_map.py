@@ -15,7 +15,9 @@ from lidar3d.records import Scan, Trajectory
 __all__ = ["add_scan_to_map", "build_dense_map"]
 
 
-def add_scan_to_map(dense_map: VoxelMap, scan: Scan, T_world_lidar: np.ndarray, twist: np.ndarray, config: Config) -> None:
+def add_scan_to_map(
+    dense_map: VoxelMap, scan: Scan, T_world_lidar: np.ndarray, twist: np.ndarray, config: Config
+) -> None:
     """Deskew ``scan`` with the body ``twist``, keep points within the sensor's range, and add them
     to ``dense_map`` at ``T_world_lidar``."""
     final = deskew_scan(scan, twist)

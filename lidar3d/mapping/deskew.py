@@ -17,7 +17,7 @@ from lidar3d.features.records import FeatureCloud, FeatureSet
 from lidar3d.mapping.se3 import exp_apply, invert, log_se3
 from lidar3d.records import Scan
 
-__all__ = ["deskew_scan", "deskew_points", "deskew_features", "twist_between"]
+__all__ = ["deskew_features", "deskew_points", "deskew_scan", "twist_between"]
 
 
 def twist_between(T_world_a: np.ndarray, T_world_b: np.ndarray, dt_s: float) -> np.ndarray:

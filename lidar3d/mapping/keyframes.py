@@ -11,7 +11,7 @@ from lidar3d.mapping.registration import LineMap, PlaneMap
 from lidar3d.mapping.se3 import invert, transform_points
 from lidar3d.mapping.voxel import voxel_downsample
 
-__all__ = ["Keyframe", "KeyframeSelector", "SubmapTarget", "Submap"]
+__all__ = ["Keyframe", "KeyframeSelector", "Submap", "SubmapTarget"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -132,7 +132,9 @@ class Submap:
     def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
         """Replace keyframe ``k``'s clouds (e.g. once a better deskewing motion is known)."""
         old = self.keyframes[k]
-        self.keyframes[k] = Keyframe(old.index, old.scan_index, old.stamp_ns, old.T_world_lidar, corner_points, surf_points)
+        self.keyframes[k] = Keyframe(
+            old.index, old.scan_index, old.stamp_ns, old.T_world_lidar, corner_points, surf_points
+        )
         self._cache.pop(k, None)
         self._target = None
 

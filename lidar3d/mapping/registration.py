@@ -27,14 +27,14 @@ from scipy.spatial import cKDTree
 from lidar3d.mapping.se3 import cross, pose_from_xyz_rpy, xyz_rpy_from_pose
 
 __all__ = [
-    "MatchRows",
-    "SolveResult",
-    "plane_rows_from_normals",
-    "line_rows_from_directions",
-    "PlaneMap",
-    "LineMap",
-    "solve_pose",
     "ALL_AXES",
+    "LineMap",
+    "MatchRows",
+    "PlaneMap",
+    "SolveResult",
+    "line_rows_from_directions",
+    "plane_rows_from_normals",
+    "solve_pose",
 ]
 
 ALL_AXES = (0, 1, 2, 3, 4, 5)
@@ -58,11 +58,11 @@ class MatchRows:
         return int(self.source_index.shape[0])
 
     @staticmethod
-    def empty() -> "MatchRows":
+    def empty() -> MatchRows:
         return MatchRows(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
 
     @staticmethod
-    def concatenate(parts: list["MatchRows"], index_shifts: list[int]) -> "MatchRows":
+    def concatenate(parts: list[MatchRows], index_shifts: list[int]) -> MatchRows:
         parts = [(p, s) for p, s in zip(parts, index_shifts) if len(p)]
         if not parts:
             return MatchRows.empty()
@@ -218,7 +218,9 @@ class LineMap(_LocalGeometryMap):
     """Edge points with lazily fitted local lines (LeGO-LOAM mapOptmization 1093-1174:
     5 neighbours, the 5th within 1 m, largest covariance eigenvalue > 3x the second)."""
 
-    def __init__(self, points: np.ndarray, *, k: int = 5, max_sq_dist: float = 1.0, min_eigen_ratio: float = 3.0) -> None:
+    def __init__(
+        self, points: np.ndarray, *, k: int = 5, max_sq_dist: float = 1.0, min_eigen_ratio: float = 3.0
+    ) -> None:
         super().__init__(points, k=k, max_sq_dist=max_sq_dist)
         self.min_eigen_ratio = min_eigen_ratio
 

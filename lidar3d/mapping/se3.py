@@ -11,17 +11,17 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 __all__ = [
-    "transform_points",
-    "invert",
-    "nearest_rigid",
-    "exp_se3",
-    "log_se3",
-    "so3_exp",
-    "interpolate_poses",
-    "pose_from_xyz_rpy",
-    "xyz_rpy_from_pose",
-    "exp_apply",
     "cross",
+    "exp_apply",
+    "exp_se3",
+    "interpolate_poses",
+    "invert",
+    "log_se3",
+    "nearest_rigid",
+    "pose_from_xyz_rpy",
+    "so3_exp",
+    "transform_points",
+    "xyz_rpy_from_pose",
 ]
 
 
@@ -191,8 +191,6 @@ def exp_apply(twist: np.ndarray, times: np.ndarray, points: np.ndarray) -> np.nd
     rotated = points + sin[:, None] * (points @ K.T) + (1.0 - cos)[:, None] * (points @ K2.T)
     # (1 - cos)/theta * t = (1 - cos)/|w|, (theta - sin)/theta * t = (theta - sin)/|w|: no division by theta.
     translated = (
-        times[:, None] * v
-        + ((1.0 - cos) / speed)[:, None] * (K @ v)
-        + ((theta - sin) / speed)[:, None] * (K2 @ v)
+        times[:, None] * v + ((1.0 - cos) / speed)[:, None] * (K @ v) + ((theta - sin) / speed)[:, None] * (K2 @ v)
     )
     return rotated + translated

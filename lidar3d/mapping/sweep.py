@@ -51,7 +51,9 @@ class SweepFeatures:
         """Every point moved to the lidar frame at the stamp with the constant body ``twist``
         (6,) (v m/s, w rad/s); only valid on a sweep as fired."""
         ground = FeatureCloud(
-            deskew_points(self.ground.points, self.ground.time_offset_s, twist), self.ground.ring, self.ground.time_offset_s
+            deskew_points(self.ground.points, self.ground.time_offset_s, twist),
+            self.ground.ring,
+            self.ground.time_offset_s,
         )
         return SweepFeatures(deskew_features(self.features, twist), ground)
 

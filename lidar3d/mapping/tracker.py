@@ -227,7 +227,9 @@ class Tracker:
         target = self._submap.target(T_world_lidar[:3, 3])
         return register_to_submap(target, corner, surf, T_world_lidar, mp, iterations, T_prior, hold_yaw)
 
-    def _refine(self, deskewed: SweepFeatures, previous: _Latest | None, step: OdometryStep, dt_s: float) -> _Refinement:
+    def _refine(
+        self, deskewed: SweepFeatures, previous: _Latest | None, step: OdometryStep, dt_s: float
+    ) -> _Refinement:
         """Scan-to-submap refinement of a sweep deskewed with the predicted motion.
 
         Registration starts from the odometry pose; along directions the submap leaves

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["voxel_keys", "voxel_downsample", "VoxelMap"]
+__all__ = ["VoxelMap", "voxel_downsample", "voxel_keys"]
 
 _OFFSET = 1 << 20  # voxel indices are shifted into [0, 2^21) per axis before packing
 
@@ -37,7 +37,9 @@ def voxel_downsample(points: np.ndarray, voxel_m: float, values: np.ndarray | No
 
 def _group_sums(inverse: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
     """Column-wise sums of (N,D) ``values`` per group (bincount is far faster than add.at)."""
-    return np.column_stack([np.bincount(inverse, weights=values[:, d], minlength=n_groups) for d in range(values.shape[1])])
+    return np.column_stack(
+        [np.bincount(inverse, weights=values[:, d], minlength=n_groups) for d in range(values.shape[1])]
+    )
 
 
 class VoxelMap:

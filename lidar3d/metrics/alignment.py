@@ -20,7 +20,7 @@ import numpy as np
 
 from lidar3d.metrics.errors import EvaluationError
 
-__all__ = ["AlignmentMode", "umeyama_se3", "yaw_alignment", "align_trajectories", "MIN_ALIGNMENT_POSES"]
+__all__ = ["MIN_ALIGNMENT_POSES", "AlignmentMode", "align_trajectories", "umeyama_se3", "yaw_alignment"]
 
 MIN_ALIGNMENT_POSES = 3
 
@@ -33,14 +33,12 @@ class AlignmentMode(str, enum.Enum):
     NONE = "none"
 
     @classmethod
-    def parse(cls, value: "str | AlignmentMode") -> "AlignmentMode":
+    def parse(cls, value: str | AlignmentMode) -> AlignmentMode:
         """The mode named ``value``; :class:`EvaluationError` for an unknown name."""
         try:
             return cls(value)
         except ValueError:
-            raise EvaluationError(
-                f"unknown alignment {value!r} (choose {', '.join(m.value for m in cls)})"
-            ) from None
+            raise EvaluationError(f"unknown alignment {value!r} (choose {', '.join(m.value for m in cls)})") from None
 
 
 def _check_points(source_m: np.ndarray, target_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -49,9 +47,7 @@ def _check_points(source_m: np.ndarray, target_m: np.ndarray) -> tuple[np.ndarra
     if x.shape != y.shape or x.ndim != 2 or x.shape[1] != 3:
         raise ValueError(f"alignment needs two (N, 3) arrays, got {x.shape} and {y.shape}")
     if x.shape[0] < MIN_ALIGNMENT_POSES:
-        raise EvaluationError(
-            f"only {x.shape[0]} associated pose(s); alignment needs at least {MIN_ALIGNMENT_POSES}"
-        )
+        raise EvaluationError(f"only {x.shape[0]} associated pose(s); alignment needs at least {MIN_ALIGNMENT_POSES}")
     return x, y
 
 
@@ -74,8 +70,7 @@ def umeyama_se3(source_m: np.ndarray, target_m: np.ndarray) -> np.ndarray:
     U, D, Vt = np.linalg.svd(sigma)
     if D[1] <= 1e-12 * max(D[0], 1e-300):
         raise EvaluationError(
-            "SE(3) alignment is degenerate: the associated positions are (nearly) collinear; "
-            "use the yaw alignment"
+            "SE(3) alignment is degenerate: the associated positions are (nearly) collinear; use the yaw alignment"
         )
     S = np.eye(3)
     if np.linalg.det(U) * np.linalg.det(Vt) < 0:

@@ -25,9 +25,7 @@ def rotation_angle_deg(R: np.ndarray) -> np.ndarray:
     """
     R = np.asarray(R, float)
     cos = (np.trace(R, axis1=-2, axis2=-1) - 1.0) / 2.0
-    axis = np.stack(
-        [R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1
-    )
+    axis = np.stack([R[..., 2, 1] - R[..., 1, 2], R[..., 0, 2] - R[..., 2, 0], R[..., 1, 0] - R[..., 0, 1]], axis=-1)
     sin = np.linalg.norm(axis, axis=-1) / 2.0
     return np.degrees(np.arctan2(sin, cos))
 

@@ -55,8 +55,14 @@ class Evaluation:
     max_gap_s: float
 
     def __post_init__(self) -> None:
-        for name in ("stamps_ns", "estimate_index", "reference_index", "T_ref_lidar", "T_ref_lidar_estimate",
-                     "T_reference_estimate"):
+        for name in (
+            "stamps_ns",
+            "estimate_index",
+            "reference_index",
+            "T_ref_lidar",
+            "T_ref_lidar_estimate",
+            "T_reference_estimate",
+        ):
             value = np.array(getattr(self, name))
             value.flags.writeable = False
             object.__setattr__(self, name, value)

@@ -27,13 +27,13 @@ from lidar3d.metrics.statistics import ErrorStatistics
 
 __all__ = [
     "KITTI_SEGMENT_LENGTHS_M",
+    "DistanceRpe",
     "KittiLengthError",
     "KittiRpe",
-    "DistanceRpe",
-    "relative_errors",
-    "kitti_rpe",
     "distance_rpe",
+    "kitti_rpe",
     "path_distances_m",
+    "relative_errors",
 ]
 
 KITTI_SEGMENT_LENGTHS_M = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)

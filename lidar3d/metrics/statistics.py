@@ -23,7 +23,7 @@ class ErrorStatistics:
     n: int
 
     @classmethod
-    def of(cls, errors: np.ndarray) -> "ErrorStatistics":
+    def of(cls, errors: np.ndarray) -> ErrorStatistics:
         """Statistics of a 1-D error array (rmse = sqrt(mean(e^2)), as evo and TUM compute it)."""
         e = np.asarray(errors, dtype=np.float64).reshape(-1)
         if e.size == 0:

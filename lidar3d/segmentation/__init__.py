@@ -10,14 +10,14 @@ from lidar3d.segmentation.range_image import RangeImage, project_scan
 from lidar3d.segmentation.segment import Segmentation, assemble_segmentation, segment_scan, usable_rows
 
 __all__ = [
+    "R_base_lidar_from_mount",
     "RangeImage",
     "Segmentation",
-    "project_scan",
-    "mark_ground",
-    "cluster_cells",
     "assemble_segmentation",
+    "cluster_cells",
+    "ground_row_count",
+    "mark_ground",
+    "project_scan",
     "segment_scan",
     "usable_rows",
-    "R_base_lidar_from_mount",
-    "ground_row_count",
 ]

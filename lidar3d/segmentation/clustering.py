@@ -58,7 +58,9 @@ def cluster_cells(
     node = np.arange(n_rows * n_columns).reshape(n_rows, n_columns)
 
     right_m = np.roll(range_m, -1, axis=1)  # horizontal neighbour, wrapping at the last column
-    horizontal = joins_by_beta(np.fmin(range_m, right_m), np.fmax(range_m, right_m), image.azimuth_resolution_rad, tan_theta)
+    horizontal = joins_by_beta(
+        np.fmin(range_m, right_m), np.fmax(range_m, right_m), image.azimuth_resolution_rad, tan_theta
+    )
     up_m = range_m[1:]
     alpha_rows = np.abs(np.diff(image.row_elevation_rad))[:, None]  # (R-1, 1)
     vertical = joins_by_beta(np.fmin(range_m[:-1], up_m), np.fmax(range_m[:-1], up_m), alpha_rows, tan_theta)

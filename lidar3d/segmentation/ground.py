@@ -39,7 +39,7 @@ from lidar3d.errors import ConfigError
 from lidar3d.segmentation.clustering import joins_by_beta
 from lidar3d.segmentation.range_image import RangeImage
 
-__all__ = ["mark_ground", "ground_row_count", "R_base_lidar_from_mount"]
+__all__ = ["R_base_lidar_from_mount", "ground_row_count", "mark_ground"]
 
 
 def R_base_lidar_from_mount(mount_roll_deg: float, mount_pitch_deg: float) -> np.ndarray:

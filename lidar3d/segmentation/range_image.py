@@ -24,8 +24,6 @@ __all__ = ["RangeImage", "project_scan"]
 log = logging.getLogger(__name__)
 
 
-
-
 @dataclass(frozen=True, slots=True)
 class RangeImage:
     """A scan resampled onto the sensor's (rows, columns) grid; R = rings, C = columns.
@@ -75,7 +73,7 @@ class RangeImage:
         return self.point_index >= 0
 
     @classmethod
-    def empty(cls, sensor: SensorModel) -> "RangeImage":
+    def empty(cls, sensor: SensorModel) -> RangeImage:
         """An image of ``sensor``'s shape with no point in any cell."""
         shape = (sensor.n_rings, sensor.n_columns)
         return cls(
@@ -94,7 +92,10 @@ def _rows(scan: Scan, range_m: np.ndarray, sensor: SensorModel, use_ring_field: 
     if use_ring_field and scan.ring.size:
         log.warning(
             "scan at %d ns has ring %d but %s has %d rings; rows taken from elevation instead",
-            scan.stamp_ns, int(scan.ring.max()), sensor.name, sensor.n_rings,
+            scan.stamp_ns,
+            int(scan.ring.max()),
+            sensor.name,
+            sensor.n_rings,
         )
     with np.errstate(invalid="ignore", divide="ignore"):
         elevation = np.arcsin(np.clip(scan.points[:, 2] / range_m, -1.0, 1.0))

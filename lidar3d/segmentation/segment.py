@@ -17,11 +17,9 @@ from lidar3d.segmentation.clustering import cluster_cells
 from lidar3d.segmentation.ground import ground_row_count, mark_ground
 from lidar3d.segmentation.range_image import RangeImage, project_scan
 
-__all__ = ["Segmentation", "segment_scan", "assemble_segmentation", "usable_rows"]
+__all__ = ["Segmentation", "assemble_segmentation", "segment_scan", "usable_rows"]
 
 log = logging.getLogger(__name__)
-
-
 
 
 @dataclass(frozen=True, slots=True)
@@ -121,7 +119,7 @@ class Segmentation:
         return self.scan.points[self.outlier_scan_index]
 
     @classmethod
-    def empty(cls, scan: Scan, image: RangeImage) -> "Segmentation":
+    def empty(cls, scan: Scan, image: RangeImage) -> Segmentation:
         """No ground, no cluster, no segmented point (the result for unusable scans)."""
         shape = image.shape
         none = np.zeros(0, dtype=np.int64)

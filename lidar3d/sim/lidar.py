@@ -26,7 +26,7 @@ from lidar3d.records import Scan
 from lidar3d.sensors import SensorModel
 from lidar3d.sim.world import ObjectClass, World
 
-__all__ = ["LidarParams", "SimulatedScan", "LidarSimulator"]
+__all__ = ["LidarParams", "LidarSimulator", "SimulatedScan"]
 
 # Reflectivity ranges (Velodyne calibrated units, 0-100 diffuse) per object class.
 _REFLECTIVITY = {

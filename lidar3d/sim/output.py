@@ -37,7 +37,7 @@ from lidar3d.sim.simulation import Simulation
 from lidar3d.sim.span import SpanParams
 from lidar3d.sim.trajectory import group_revisits
 
-__all__ = ["BagFormat", "SimulationOutputs", "write_simulation", "simulate", "OUTPUT_NAMES"]
+__all__ = ["OUTPUT_NAMES", "BagFormat", "SimulationOutputs", "simulate", "write_simulation"]
 
 logger = logging.getLogger(__name__)
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-__all__ = ["RigParams", "R_IMU_LIDAR_ALIGNED"]
+__all__ = ["R_IMU_LIDAR_ALIGNED", "RigParams"]
 
 # Lidar (x forward, y left, z up) -> SPAN vehicle (x right, y forward, z up), exact alignment.
 R_IMU_LIDAR_ALIGNED = np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])

@@ -23,7 +23,7 @@ from lidar3d.sim.terrain import TerrainParams
 from lidar3d.sim.trajectory import RouteParams
 from lidar3d.sim.world import StreetLayout, WorldParams
 
-__all__ = ["Scenario", "SCENARIOS", "get_scenario", "DEFAULT_SCENARIO"]
+__all__ = ["DEFAULT_SCENARIO", "SCENARIOS", "Scenario", "get_scenario"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -79,8 +79,16 @@ SCENARIOS: dict[str, Scenario] = {
                 block_kinds=((3, 0, "open"), (3, 1, "open")),
             ),
             route_m=(
-                (30.0, 0.0), (420.0, 0.0), (420.0, 80.0), (100.0, 80.0), (100.0, 0.0),
-                (0.0, 0.0), (0.0, 80.0), (180.0, 80.0), (180.0, 0.0), (260.0, 0.0),
+                (30.0, 0.0),
+                (420.0, 0.0),
+                (420.0, 80.0),
+                (100.0, 80.0),
+                (100.0, 0.0),
+                (0.0, 0.0),
+                (0.0, 80.0),
+                (180.0, 80.0),
+                (180.0, 0.0),
+                (260.0, 0.0),
             ),
             route=RouteParams(cruise_speed_mps=8.0),
         ),
@@ -97,8 +105,14 @@ SCENARIOS: dict[str, Scenario] = {
             description="~700 m at up to 10 m/s with sharp 90-degree corners",
             layout=StreetLayout(street_x_m=(0.0, 80.0, 160.0), street_y_m=(0.0, 70.0, 140.0)),
             route_m=(
-                (40.0, 0.0), (160.0, 0.0), (160.0, 70.0), (80.0, 70.0), (80.0, 140.0),
-                (0.0, 140.0), (0.0, 0.0), (120.0, 0.0),
+                (40.0, 0.0),
+                (160.0, 0.0),
+                (160.0, 70.0),
+                (80.0, 70.0),
+                (80.0, 140.0),
+                (0.0, 140.0),
+                (0.0, 0.0),
+                (120.0, 0.0),
             ),
             route=RouteParams(
                 corner_radius_m=6.0,

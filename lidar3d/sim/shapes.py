@@ -13,13 +13,13 @@ import numpy as np
 __all__ = [
     "Mesh",
     "box",
-    "gable_roof",
     "cylinder",
     "ellipsoid",
+    "gable_roof",
     "heightfield",
     "merge",
-    "rotation_z",
     "rotation_to_normal",
+    "rotation_z",
 ]
 
 Mesh = tuple[np.ndarray, np.ndarray]
@@ -28,12 +28,18 @@ Mesh = tuple[np.ndarray, np.ndarray]
 _CUBE_VERTICES = np.array([[(i & 1) - 0.5, ((i >> 1) & 1) - 0.5, ((i >> 2) & 1) - 0.5] for i in range(8)])
 _CUBE_TRIANGLES = np.array(
     [
-        [0, 2, 1], [1, 2, 3],  # bottom (z-)
-        [4, 5, 6], [5, 7, 6],  # top (z+)
-        [0, 1, 4], [1, 5, 4],  # y-
-        [2, 6, 3], [3, 6, 7],  # y+
-        [0, 4, 2], [2, 4, 6],  # x-
-        [1, 3, 5], [3, 7, 5],  # x+
+        [0, 2, 1],
+        [1, 2, 3],  # bottom (z-)
+        [4, 5, 6],
+        [5, 7, 6],  # top (z+)
+        [0, 1, 4],
+        [1, 5, 4],  # y-
+        [2, 6, 3],
+        [3, 6, 7],  # y+
+        [0, 4, 2],
+        [2, 4, 6],  # x-
+        [1, 3, 5],
+        [3, 7, 5],  # x+
     ],
     dtype=np.int64,
 )
@@ -71,17 +77,24 @@ def gable_roof(length_m: float, width_m: float, rise_m: float, base_center_m, ya
     hl, hw = 0.5 * length_m, 0.5 * width_m
     local = np.array(
         [
-            [-hl, -hw, 0.0], [hl, -hw, 0.0], [hl, hw, 0.0], [-hl, hw, 0.0],  # eaves rectangle
-            [-hl, 0.0, rise_m], [hl, 0.0, rise_m],  # ridge
+            [-hl, -hw, 0.0],
+            [hl, -hw, 0.0],
+            [hl, hw, 0.0],
+            [-hl, hw, 0.0],  # eaves rectangle
+            [-hl, 0.0, rise_m],
+            [hl, 0.0, rise_m],  # ridge
         ]
     )
     triangles = np.array(
         [
-            [0, 1, 5], [0, 5, 4],  # slope y-
-            [2, 3, 4], [2, 4, 5],  # slope y+
+            [0, 1, 5],
+            [0, 5, 4],  # slope y-
+            [2, 3, 4],
+            [2, 4, 5],  # slope y+
             [0, 4, 3],  # gable x-
             [1, 2, 5],  # gable x+
-            [0, 3, 2], [0, 2, 1],  # base
+            [0, 3, 2],
+            [0, 2, 1],  # base
         ],
         dtype=np.int64,
     )

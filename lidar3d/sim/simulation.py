@@ -33,7 +33,7 @@ from lidar3d.sim.span import SpanParams, degraded_window_ns, span_log_lines
 from lidar3d.sim.trajectory import RevisitPair, VehicleMotion, find_revisits
 from lidar3d.sim.world import generate_world
 
-__all__ = ["Simulation", "DEFAULT_START_TIME_NS"]
+__all__ = ["DEFAULT_START_TIME_NS", "Simulation"]
 
 logger = logging.getLogger(__name__)
 

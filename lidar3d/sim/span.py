@@ -34,19 +34,19 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from lidar3d.errors import SimulationError
-from lidar3d.gnss.enu import R_enu_ecef
 from lidar3d.gnss.attitude import span_from_R_enu_vehicle
 from lidar3d.gnss.crc import novatel_crc32
+from lidar3d.gnss.enu import R_enu_ecef
 
 __all__ = [
-    "GeoOrigin",
-    "SpanQuality",
-    "SpanParams",
     "GPS_EPOCH_UNIX_S",
-    "gps_week_seconds",
-    "enu_to_geodetic",
-    "span_log_lines",
+    "GeoOrigin",
+    "SpanParams",
+    "SpanQuality",
     "degraded_window_ns",
+    "enu_to_geodetic",
+    "gps_week_seconds",
+    "span_log_lines",
 ]
 
 GPS_EPOCH_UNIX_S = 315_964_800  # 1980-01-06T00:00:00Z
@@ -153,9 +153,7 @@ def enu_to_geodetic(enu_m: np.ndarray, origin: GeoOrigin) -> tuple[np.ndarray, n
     from pyproj.enums import TransformDirection
 
     enu = np.asarray(enu_m, float).reshape(-1, 3)
-    lat, lon, h = _topocentric(origin).transform(
-        enu[:, 0], enu[:, 1], enu[:, 2], direction=TransformDirection.INVERSE
-    )
+    lat, lon, h = _topocentric(origin).transform(enu[:, 0], enu[:, 1], enu[:, 2], direction=TransformDirection.INVERSE)
     return np.asarray(lat), np.asarray(lon), np.asarray(h)
 
 

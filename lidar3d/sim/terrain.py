@@ -14,7 +14,7 @@ import numpy as np
 
 from lidar3d.errors import SimulationError
 
-__all__ = ["TerrainParams", "Terrain", "make_terrain"]
+__all__ = ["Terrain", "TerrainParams", "make_terrain"]
 
 
 @dataclass(frozen=True, slots=True)

@@ -22,7 +22,7 @@ from scipy.interpolate import CubicSpline, PchipInterpolator
 from lidar3d.errors import SimulationError
 from lidar3d.sim.terrain import Terrain
 
-__all__ = ["RouteParams", "VehicleMotion", "RevisitPair", "find_revisits", "group_revisits"]
+__all__ = ["RevisitPair", "RouteParams", "VehicleMotion", "find_revisits", "group_revisits"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -73,9 +73,7 @@ def _rounded_polyline(nodes_m: np.ndarray, radius_m: float) -> np.ndarray:
     cut = np.concatenate([[0.0], radius_m * np.tan(0.5 * turn), [0.0]])
     for k, length in enumerate(lengths):
         if cut[k] + cut[k + 1] > length + 1e-9:
-            raise SimulationError(
-                f"route segment {k} ({length:.1f} m) is too short for corner radius {radius_m} m"
-            )
+            raise SimulationError(f"route segment {k} ({length:.1f} m) is too short for corner radius {radius_m} m")
     pieces = []
     for k in range(len(lengths)):
         start = nodes_m[k] + units[k] * cut[k]

@@ -23,7 +23,7 @@ from lidar3d.errors import SimulationError
 from lidar3d.sim import shapes
 from lidar3d.sim.terrain import Terrain, TerrainParams, make_terrain
 
-__all__ = ["BlockKind", "ObjectClass", "StreetLayout", "WorldParams", "World", "generate_world"]
+__all__ = ["BlockKind", "ObjectClass", "StreetLayout", "World", "WorldParams", "generate_world"]
 
 
 class BlockKind(str, Enum):
@@ -249,9 +249,7 @@ def _building(builder: _Builder, edge: _Edge, along: float, frontage: float, par
         scale = rng.uniform(0.45, 0.75)
         back = (1.0 - scale) * 0.5 * depth * rng.uniform(0.3, 1.0)
         tier_center = edge.point(along, offset + back)
-        parts.append(
-            shapes.box((frontage * scale, depth * scale, tier), (*tier_center, z_top + 0.5 * tier), rotation)
-        )
+        parts.append(shapes.box((frontage * scale, depth * scale, tier), (*tier_center, z_top + 0.5 * tier), rotation))
     builder.add(parts, ObjectClass.BUILDING)
 
 
