@@ -1,8 +1,11 @@
 """Configuration: one frozen dataclass section per stage, TOML in and out.
 
 Defaults are LeGO-LOAM's VLP-16 values (``utility.h`` at commit 896a7a95, see
-``shared/reference/lego-loam-and-peers.md``). A TOML file may override any subset; unknown keys
-and wrongly typed values are rejected with the dotted path that is wrong.
+``shared/reference/lego-loam-and-peers.md``). A TOML file may override any subset; unknown keys,
+wrongly typed values and values outside a key's range are rejected with the dotted path that is
+wrong, as one line. Every key declares its range and meaning once, in its field's metadata
+(:func:`key_specs` lists them); :func:`config_from_dict` checks them, and :func:`config_to_toml`
+writes each range as a trailing comment.
 """
 
 from __future__ import annotations
@@ -11,6 +14,7 @@ import dataclasses
 import math
 import sys
 import typing
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,19 +28,143 @@ else:  # pragma: no cover - exercised on Python 3.10 only
     import tomli as tomllib
 
 __all__ = [
+    "Choices",
     "Config",
     "FeatureConfig",
     "GnssConfig",
     "InputConfig",
+    "KeySpec",
+    "ListRange",
     "LoopConfig",
     "MappingConfig",
     "OdometryConfig",
+    "Range",
     "SegmentationConfig",
     "SensorConfig",
     "config_from_dict",
     "config_to_toml",
+    "config_with",
+    "key_specs",
     "load_config",
 ]
+
+
+def _number(value: float) -> str:
+    """A bound as written in a range: ``5``, ``0.2``, ``4000000000``."""
+    return str(int(value)) if float(value).is_integer() else repr(float(value))
+
+
+@dataclass(frozen=True, slots=True)
+class Range:
+    """The allowed values of a numeric key: an interval from ``low`` to ``high`` (closed unless
+    ``low_open``/``high_open``), in ``unit``; with ``zero_keeps_preset`` the value 0 is allowed too
+    and means "the sensor preset's value"."""
+
+    low: float
+    high: float
+    low_open: bool = False
+    high_open: bool = False
+    unit: str = ""
+    zero_keeps_preset: bool = False
+
+    def contains(self, value: float) -> bool:
+        if self.zero_keeps_preset and value == 0:
+            return True
+        above = value > self.low if self.low_open else value >= self.low
+        below = value < self.high if self.high_open else value <= self.high
+        return above and below
+
+    def interval(self) -> str:
+        """The interval alone, e.g. ``(0, 10]``."""
+        opening = "(" if self.low_open else "["
+        closing = ")" if self.high_open else "]"
+        return f"{opening}{_number(self.low)}, {_number(self.high)}{closing}"
+
+    def __str__(self) -> str:
+        text = self.interval() + (f" {self.unit}" if self.unit else "")
+        return f"0 (preset) or {text}" if self.zero_keeps_preset else text
+
+
+@dataclass(frozen=True, slots=True)
+class ListRange:
+    """The allowed values of a list of numbers: ``min_length``..``max_length`` entries, each in
+    ``entry``; or, when ``entry`` is a tuple of ranges, exactly one entry per range (position i in
+    ``entry[i]``). A non-empty ``empty_meaning`` allows [] too and says what it means."""
+
+    entry: Range | tuple[Range, ...]
+    min_length: int = 0
+    max_length: int = 0
+    empty_meaning: str = ""
+
+    def length_ok(self, n: int) -> bool:
+        if n == 0 and self.empty_meaning:
+            return True
+        if isinstance(self.entry, tuple):
+            return n == len(self.entry)
+        return self.min_length <= n <= self.max_length
+
+    def entry_range(self, i: int) -> Range:
+        return self.entry[i] if isinstance(self.entry, tuple) else self.entry
+
+    def __str__(self) -> str:
+        empty = f"[] ({self.empty_meaning}) or " if self.empty_meaning else ""
+        if isinstance(self.entry, tuple):
+            return empty + "[" + ", ".join(str(r) for r in self.entry) + "]"
+        return f"{empty}{self.min_length} to {self.max_length} entries, each in {self.entry}"
+
+
+@dataclass(frozen=True, slots=True)
+class Choices:
+    """The allowed values of a string key."""
+
+    names: tuple[str, ...]
+
+    def __str__(self) -> str:
+        return ", ".join(self.names)
+
+
+@dataclass(frozen=True, slots=True)
+class KeySpec:
+    """One configuration key as documented: dotted ``path`` (``mapping.map_voxel_m``), the
+    ``default`` value, the allowed values (``valid``: None for booleans and free strings) and its
+    ``meaning``."""
+
+    path: str
+    default: Any
+    valid: Range | ListRange | Choices | None
+    meaning: str
+
+    def default_text(self) -> str:
+        """The default as written in TOML, e.g. ``0.2``, ``[]``, ``"vlp16"``."""
+        return _toml_value(self.default)
+
+    def valid_text(self) -> str:
+        """The allowed values as one line, for comments and the manual."""
+        if self.valid is not None:
+            return str(self.valid)
+        if isinstance(self.default, bool):
+            return "true or false"
+        return "list of strings" if isinstance(self.default, tuple) else "any string"
+
+
+def _key(default: Any, valid: Range | ListRange | Choices | None, meaning: str) -> Any:
+    """A config field: its default, allowed values and meaning (read by :func:`key_specs`)."""
+    return field(default=default, metadata={"valid": valid, "meaning": meaning})
+
+
+def _closed(low: float, high: float, unit: str = "") -> Range:
+    return Range(low, high, unit=unit)
+
+
+def _positive(high: float, unit: str = "") -> Range:
+    """(0, high]: sizes and distances where 0 would divide by zero or select nothing."""
+    return Range(0.0, high, low_open=True, unit=unit)
+
+
+_VOXEL_M = _positive(10.0, "m")
+_FRACTION = _closed(0.0, 1.0)
+_ITERATIONS = _closed(1, 1000)
+_ACUTE_DEG = Range(0.0, 90.0, low_open=True, high_open=True, unit="deg")
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,14 +173,24 @@ class SensorConfig:
     ``*_override*`` fields replace single values of that preset, and their zero/empty default means
     "keep the preset's value". :attr:`resolved_model` is the geometry in force."""
 
-    model: str = "vlp16"
-    elevation_override_deg: tuple[float, ...] = ()  # beam elevation table (ascending); empty: the preset's
-    n_columns_override: int = 0  # azimuth cells per sweep; 0: the preset's
-    rotation_override_hz: float = 0.0  # sweeps per second; 0: the preset's
-    max_range_override_m: float = 0.0  # farthest return kept; 0: the preset's rated range
-    min_range_m: float = 1.0  # LeGO-LOAM sensorMinimumRange
-    mount_pitch_deg: float = 0.0  # LeGO-LOAM sensorMountAngle
-    mount_roll_deg: float = 0.0
+    model: str = _key("vlp16", Choices(tuple(SENSOR_MODELS)), "sensor preset: beam table, columns, rate, range")
+    elevation_override_deg: tuple[float, ...] = _key(
+        (),
+        ListRange(_closed(-90.0, 90.0, "deg"), 2, 256, empty_meaning="preset"),
+        "beam elevation table, strictly ascending (ring r is the r-th lowest beam)",
+    )
+    n_columns_override: int = _key(
+        0, Range(16, 36000, zero_keeps_preset=True), "azimuth cells per sweep in the range image"
+    )
+    rotation_override_hz: float = _key(0.0, Range(0.1, 100.0, unit="Hz", zero_keeps_preset=True), "sweeps per second")
+    max_range_override_m: float = _key(
+        0.0, Range(0.0, 2000.0, low_open=True, unit="m", zero_keeps_preset=True), "farthest return kept"
+    )
+    min_range_m: float = _key(
+        1.0, Range(0.0, 2000.0, high_open=True, unit="m"), "nearest return kept (LeGO-LOAM sensorMinimumRange)"
+    )
+    mount_pitch_deg: float = _key(0.0, _closed(-180.0, 180.0, "deg"), "mount pitch (LeGO-LOAM sensorMountAngle)")
+    mount_roll_deg: float = _key(0.0, _closed(-180.0, 180.0, "deg"), "mount roll")
 
     @property
     def resolved_model(self) -> SensorModel:
@@ -71,117 +209,162 @@ class SensorConfig:
 class InputConfig:
     """How scans are read from bags."""
 
-    topic: str = ""  # empty: auto-detect the only PointCloud2 topic
+    topic: str = _key("", None, "PointCloud2 topic; empty: auto-detect the only one")
 
 
 @dataclass(frozen=True, slots=True)
 class SegmentationConfig:
     """Range-image ground segmentation and clustering (LeGO-LOAM imageProjection)."""
 
-    ground_rows: int = 0  # 0: every beam below the horizon (VLP-16: rows 0..7, groundScanInd = 7)
-    ground_angle_threshold_deg: float = 10.0
-    ground_continuity: bool = True  # false: LeGO-LOAM's pairwise angle test alone
-    ground_max_angle_change_deg: float = 5.0  # continuity: slope change between stacked pairs
-    ground_height_slope_deg: float = 5.0  # continuity: a column's first run starts within margin +
-    ground_height_margin_m: float = 0.2  # distance * tan(slope) of the scan's ground level
-    ground_support_margin_m: float = 0.04  # contact: ground this close to its run's line stays ground
-    ground_noise_m: float = 0.05  # continuity: height steps this small pass whatever their angle
-    cluster_angle_deg: float = 60.0  # segmentTheta
-    min_cluster_points: int = 30
-    min_cluster_points_multi_ring: int = 5  # segmentValidPointNum
-    min_cluster_rings: int = 3  # segmentValidLineNum
-    ground_column_stride: int = 5  # ground kept on every 5th column in the segmented cloud
-    outlier_column_stride: int = 5  # outlier cloud for mapping: every 5th column, rows >= ground_rows
-    use_ring_field: bool = True  # rows from the ring field (useCloudRing); false: from elevation
+    ground_rows: int = _key(
+        0, _closed(0, 256), "rows 0..n-1 may be ground; 0: every beam below the horizon (VLP-16: rows 0..7)"
+    )
+    ground_angle_threshold_deg: float = _key(10.0, _ACUTE_DEG, "steepest slope between stacked points taken as ground")
+    ground_continuity: bool = _key(
+        True, None, "continuity tests on top of the pairwise angle test (false: LeGO-LOAM's)"
+    )
+    ground_max_angle_change_deg: float = _key(5.0, _ACUTE_DEG, "continuity: slope change between stacked pairs")
+    ground_height_slope_deg: float = _key(
+        5.0,
+        Range(0.0, 90.0, high_open=True, unit="deg"),
+        "continuity: a column's first run starts within margin + distance * tan(slope) of the scan's ground level",
+    )
+    ground_height_margin_m: float = _key(0.2, _closed(0.0, 10.0, "m"), "continuity: the margin of that test")
+    ground_support_margin_m: float = _key(
+        0.04, _closed(0.0, 1.0, "m"), "contact: ground this close to its run's line stays ground"
+    )
+    ground_noise_m: float = _key(0.05, _closed(0.0, 1.0, "m"), "continuity: height steps this small pass at any angle")
+    cluster_angle_deg: float = _key(60.0, _ACUTE_DEG, "neighbours join a cluster above this angle (segmentTheta)")
+    min_cluster_points: int = _key(30, _closed(1, 1_000_000), "a cluster this big is kept")
+    min_cluster_points_multi_ring: int = _key(
+        5, _closed(1, 1_000_000), "... or this big over min_cluster_rings rings (segmentValidPointNum)"
+    )
+    min_cluster_rings: int = _key(3, _closed(1, 256), "rings of that rule (segmentValidLineNum)")
+    ground_column_stride: int = _key(5, _closed(1, 36000), "ground kept on every n-th column in the segmented cloud")
+    outlier_column_stride: int = _key(
+        5, _closed(1, 36000), "outlier cloud for mapping: every n-th column, rows >= ground rows"
+    )
+    use_ring_field: bool = _key(True, None, "rows from the ring field (useCloudRing); false: from elevation")
 
 
 @dataclass(frozen=True, slots=True)
 class FeatureConfig:
     """Curvature features (LeGO-LOAM featureAssociation)."""
 
-    curvature_half_window: int = 5
-    edge_threshold: float = 0.1  # m^2, unnormalised curvature
-    planar_threshold: float = 0.1
-    sections_per_ring: int = 6
-    sharp_per_section: int = 2
-    less_sharp_per_section: int = 20
-    flat_per_section: int = 4
-    less_flat_voxel_m: float = 0.2
-    occlusion_depth_m: float = 0.3
-    parallel_beam_ratio: float = 0.02
-    neighbour_max_column_gap: int = 10  # occlusion test and pick suppression stop at wider gaps
+    curvature_half_window: int = _key(5, _closed(1, 100), "points each side in the curvature sum")
+    edge_threshold: float = _key(
+        0.1, _closed(0.0, 1000.0, "m^2"), "edge candidates above this (unnormalised) curvature"
+    )
+    planar_threshold: float = _key(0.1, _closed(0.0, 1000.0, "m^2"), "flat candidates below this curvature")
+    sections_per_ring: int = _key(6, _closed(1, 360), "each ring is split into this many sections for picking")
+    sharp_per_section: int = _key(2, _closed(0, 10000), "sharp edges per section (the first less-sharp picks)")
+    less_sharp_per_section: int = _key(20, _closed(0, 10000), "less-sharp edges per section")
+    flat_per_section: int = _key(4, _closed(0, 10000), "flat points per section")
+    less_flat_voxel_m: float = _key(0.2, _VOXEL_M, "voxel of the less-flat cloud (per ring)")
+    occlusion_depth_m: float = _key(0.3, _positive(100.0, "m"), "range step marking an occlusion edge")
+    parallel_beam_ratio: float = _key(0.02, _FRACTION, "neighbour range jumps above this share of range: beam parallel")
+    neighbour_max_column_gap: int = _key(
+        10, _closed(1, 36000), "occlusion test and pick suppression stop at wider gaps"
+    )
 
 
 @dataclass(frozen=True, slots=True)
 class OdometryConfig:
     """Scan-to-scan two-step odometry (LeGO-LOAM featureAssociation)."""
 
-    max_iterations: int = 25  # per step
-    rematch_every: int = 5  # correspondences recomputed every 5 iterations
-    min_rows: int = 10
-    degeneracy_threshold: float = 10.0
-    search_radius_m: float = 5.0  # nearestFeatureSearchSqDist = 25 m^2
-    min_previous_edges: int = 10
-    min_previous_planes: int = 100
+    max_iterations: int = _key(25, _ITERATIONS, "Gauss-Newton iterations per step")
+    rematch_every: int = _key(5, _ITERATIONS, "correspondences recomputed every n iterations")
+    min_rows: int = _key(10, _closed(6, 1_000_000), "fewer residual rows: the step fails (6 unknowns)")
+    degeneracy_threshold: float = _key(10.0, _closed(0.0, 1e9), "Hessian eigenvalues below this are degenerate")
+    search_radius_m: float = _key(
+        5.0, _positive(100.0, "m"), "correspondence search radius (nearestFeatureSearchSqDist)"
+    )
+    min_previous_edges: int = _key(10, _closed(0, 1_000_000), "the previous scan needs this many edges ...")
+    min_previous_planes: int = _key(100, _closed(0, 1_000_000), "... and this many planar points")
 
 
 @dataclass(frozen=True, slots=True)
 class MappingConfig:
     """Scan-to-submap refinement and keyframes (LeGO-LOAM mapOptmization, LIO-SAM keyframe rule)."""
 
-    corner_voxel_m: float = 0.2
-    surf_voxel_m: float = 0.4  # keyframe and submap surface clouds
-    scan_surf_voxel_m: float = 0.8  # the current scan's surface points matched against the submap
-    max_iterations: int = 10
-    rematch_every: int = 2  # LeGO-LOAM rematches every iteration; every 2nd costs 25 % less, same accuracy
-    min_rows: int = 50
-    degeneracy_threshold: float = 100.0
-    converge_rotation_deg: float = 0.05
-    converge_translation_m: float = 0.0005
+    corner_voxel_m: float = _key(0.2, _VOXEL_M, "voxel of keyframe and submap corner clouds")
+    surf_voxel_m: float = _key(0.4, _VOXEL_M, "voxel of keyframe and submap surface clouds")
+    scan_surf_voxel_m: float = _key(0.8, _VOXEL_M, "voxel of the current scan's surface points matched to the submap")
+    max_iterations: int = _key(10, _ITERATIONS, "Gauss-Newton iterations per scan")
+    rematch_every: int = _key(
+        2, _ITERATIONS, "correspondences recomputed every n iterations (LeGO-LOAM: 1; 2 costs 25 % less)"
+    )
+    min_rows: int = _key(50, _closed(6, 1_000_000), "fewer residual rows: registration fails; keyframe surface minimum")
+    degeneracy_threshold: float = _key(100.0, _closed(0.0, 1e9), "Hessian eigenvalues below this are degenerate")
+    converge_rotation_deg: float = _key(0.05, _closed(0.0, 10.0, "deg"), "converged below this rotation step ...")
+    converge_translation_m: float = _key(0.0005, _closed(0.0, 1.0, "m"), "... and this translation step")
     # Submap planes: LeGO-LOAM fits 5 neighbours within 1 m; on a 16-beam scan those lie on one
     # or two ring lines, and the tilt noise of such small fits, shared by every scan matched
     # against the same keyframes, leaves a pitch offset of 0.2-0.5 deg (ours, loop and long).
     # 10 neighbours within 1.4 m cut it to 0.04-0.1 deg.
-    plane_neighbours: int = 10
-    plane_max_distance_m: float = 1.4
-    level_normal_z: float = 0.9  # planes this level inform only z, roll, pitch (0: off)
-    hold_yaw_min_degenerate: int = 2  # this many degenerate directions: yaw from the motion model (0: off)
+    plane_neighbours: int = _key(10, _closed(3, 100), "neighbours of a submap plane fit")
+    plane_max_distance_m: float = _key(1.4, _positive(50.0, "m"), "farthest neighbour of a plane fit")
+    level_normal_z: float = _key(0.9, _FRACTION, "planes this level inform only z, roll, pitch (0: off)")
+    hold_yaw_min_degenerate: int = _key(
+        2, _closed(0, 6), "this many degenerate directions: yaw from the motion model (0: off)"
+    )
     # Below this yaw rate the vehicle drives straight: degenerate directions take the motion
     # model's prediction and yaw may be held (above it the prediction lags the turn).
-    straight_max_yaw_rate_deg_s: float = 5.0
-    robust_scale_m: float = 0.05  # Geman-McClure scale; 0 selects LeGO-LOAM's 1 - 0.9|r| weight
-    keyframe_distance_m: float = 1.0  # LIO-SAM surroundingkeyframeAddingDistThreshold
-    keyframe_angle_deg: float = 11.46  # LIO-SAM 0.2 rad
-    submap_radius_m: float = 50.0  # surroundingKeyframeSearchRadius
-    submap_max_keyframes: int = 60
-    submap_recent_keyframes: int = 10
-    submap_cache_keyframes: int = 400
-    submap_rebuild_every_keyframes: int = 3
-    map_voxel_m: float = 0.2  # dense output map
+    straight_max_yaw_rate_deg_s: float = _key(
+        5.0, _closed(0.0, 3600.0, "deg/s"), "below this yaw rate the motion counts as straight"
+    )
+    robust_scale_m: float = _key(
+        0.05, _closed(0.0, 10.0, "m"), "Geman-McClure scale; 0 selects LeGO-LOAM's 1 - 0.9|r| weight"
+    )
+    keyframe_distance_m: float = _key(
+        1.0, _closed(0.0, 1000.0, "m"), "new keyframe after this distance (surroundingkeyframeAddingDistThreshold)"
+    )
+    keyframe_angle_deg: float = _key(11.46, _closed(0.0, 180.0, "deg"), "... or this rotation (LIO-SAM 0.2 rad)")
+    submap_radius_m: float = _key(50.0, _positive(10000.0, "m"), "keyframes this near form the submap")
+    submap_max_keyframes: int = _key(60, _closed(1, 100_000), "nearest keyframes in the submap at most")
+    submap_recent_keyframes: int = _key(10, _closed(0, 100_000), "latest keyframes always in the submap")
+    submap_cache_keyframes: int = _key(400, _closed(0, 1_000_000), "world-frame keyframe clouds kept in memory")
+    submap_rebuild_every_keyframes: int = _key(3, _closed(1, 100_000), "submap rebuilt after this many new keyframes")
+    map_voxel_m: float = _key(0.2, _VOXEL_M, "voxel of the dense output map (map.pcd)")
     # A scan is registered deskewed with the motion model's prediction (the motion before it).
     # Once the next scan's pose is known, the motion over its own sweep is (forward difference);
     # when that moves some point of the sweep by redeskew_threshold_m more than the prediction did
     # (the angular part measured at redeskew_lever_m), the scan is deskewed again and re-registered
     # before it enters the map. Turn entries and exits, where the prediction lags a whole sweep.
-    redeskew_threshold_m: float = 0.01
-    redeskew_lever_m: float = 10.0
-    redeskew_iterations: int = 4  # iteration limit of that second registration
+    redeskew_threshold_m: float = _key(
+        0.01, _closed(0.0, 1000.0, "m"), "re-deskew a scan when its sweep motion moves a point this much more"
+    )
+    redeskew_lever_m: float = _key(10.0, _closed(0.0, 10000.0, "m"), "lever arm of that test's rotation part")
+    redeskew_iterations: int = _key(4, _ITERATIONS, "iteration limit of the second registration")
+
+
+_GEODETIC_ORIGIN = (_closed(-90.0, 90.0, "deg"), _closed(-180.0, 180.0, "deg"), _closed(-1000.0, 20000.0, "m"))
 
 
 @dataclass(frozen=True, slots=True)
 class GnssConfig:
     """NovAtel SPAN ground truth and trajectory evaluation (lidar3d.gnss, lidar3d.metrics)."""
 
-    leap_seconds: int = 18  # GPS - UTC; 18 s since 2017-01-01
-    time_offset_s: float = 0.0  # bag clock minus GPS-derived UNIX time
-    accepted_ins_statuses: tuple[str, ...] = ("INS_SOLUTION_GOOD",)
-    require_fine_time: bool = True  # drop long-header solutions whose time status is below FINE
-    max_association_gap_s: float = 0.2  # longest reference interval interpolated across
-    origin: tuple[float, ...] = ()  # (lat_deg, lon_deg, h_ellipsoid_m); empty: first good fix
-    align: str = "se3"  # se3 (Umeyama), yaw (4-DoF) or none
-    rpe_segment_lengths_m: tuple[float, ...] = (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)
-    rpe_step_s: float = 1.0  # KITTI: a segment start every 10 frames at 10 Hz
-    rpe_distances_m: tuple[float, ...] = (10.0, 100.0)  # per fixed distance RPE (evo -d D -u m)
+    leap_seconds: int = _key(18, _closed(0, 100, "s"), "GPS - UTC; 18 s since 2017-01-01")
+    time_offset_s: float = _key(
+        0.0, _closed(-4e9, 4e9, "s"), "bag clock minus GPS-derived UNIX time (a clock left at 1970 included)"
+    )
+    accepted_ins_statuses: tuple[str, ...] = _key(("INS_SOLUTION_GOOD",), None, "INS statuses kept")
+    require_fine_time: bool = _key(True, None, "drop long-header solutions whose time status is below FINE")
+    max_association_gap_s: float = _key(0.2, _positive(60.0, "s"), "longest reference interval interpolated across")
+    origin: tuple[float, ...] = _key(
+        (), ListRange(_GEODETIC_ORIGIN, empty_meaning="first good fix"), "ENU origin (lat_deg, lon_deg, h_ellipsoid_m)"
+    )
+    align: str = _key("se3", Choices(("se3", "yaw", "none")), "alignment: se3 (Umeyama), yaw (4-DoF) or none")
+    rpe_segment_lengths_m: tuple[float, ...] = _key(
+        (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0),
+        ListRange(_positive(1e6, "m"), 0, 100),
+        "KITTI RPE segment lengths",
+    )
+    rpe_step_s: float = _key(1.0, _positive(3600.0, "s"), "a KITTI segment start every this many seconds")
+    rpe_distances_m: tuple[float, ...] = _key(
+        (10.0, 100.0), ListRange(_positive(1e6, "m"), 0, 100), "per fixed distance RPE (evo -d D -u m)"
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -189,41 +372,56 @@ class LoopConfig:
     """Loop closure and pose graph (lidar3d.loop). Sources: LeGO-LOAM/LIO-SAM mapOptmization,
     hdl_graph_slam loop_detector, KISS-SLAM loop_closer (shared/reference/lego-loam-and-peers.md)."""
 
-    enabled: bool = True
-    search_radius_m: float = 7.0  # LeGO-LOAM historyKeyframeSearchRadius (LIO-SAM 15)
-    horizontal_distance: bool = True  # hdl_graph_slam: (x, y) distance, blind to height drift
-    min_time_gap_s: float = 30.0  # LeGO-LOAM / LIO-SAM historyKeyframeSearchTimeDiff
-    max_candidates: int = 2  # verified per query keyframe, nearest first, until one is accepted
-    cooldown_keyframes: int = 5  # after an accepted loop, skip this many query keyframes
-    submap_neighbours: int = 10  # target = match +- this many keyframes (LeGO-LOAM +-25 at 0.3 m spacing)
-    voxel_m: float = 0.4  # LeGO-LOAM loop target downsampling
-    icp_method: str = "gicp"  # or "point_to_plane" (Open3D); GICP rotations were 10x closer on `long`
-    icp_max_correspondence_m: tuple[float, ...] = (4.0, 2.0, 1.0, 0.5)  # coarse-to-fine stages
-    icp_max_iterations: int = 30  # per stage
-    normal_radius_m: float = 1.2  # target normals for point-to-plane
-    min_source_points: int = 300  # LIO-SAM loop check
-    min_target_points: int = 1000  # LIO-SAM loop check
-    min_fitness: float = 0.7  # share of query points with a target point within the final distance
-    max_rmse_m: float = 0.3  # inlier RMSE at the final distance (0.4 m voxel centroids: ~0.15 typical)
-    min_overlap: float = 0.5  # voxel overlap |A & B| / min(|A|, |B|) (KISS-SLAM: 0.4)
-    overlap_voxel_m: float = 1.0
-    max_correction_m: float = 1.0  # ICP may move the guess this far ...
-    correction_per_distance: float = 0.01  # ... plus 1 % of the path between the two keyframes
-    max_correction_deg: float = 10.0
-    information_points: int = 100  # effective independent correspondences behind the loop information
-    min_sigma_translation_m: float = 0.02  # floor added to the loop covariance
-    min_sigma_rotation_deg: float = 0.5  # one keyframe against a submap: trust its rotation to ~0.5 deg
-    huber_k: float = 1.345  # Huber threshold on loop factors, in sigmas (hdl_graph_slam: 1.0)
-    odometry_sigma_translation_m: float = 0.01  # per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-4)
-    odometry_sigma_rotation_deg: float = 0.05  # per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-6 rad^2)
-    relinearize_threshold: float = 0.01  # iSAM2 (LIO-SAM 0.1)
-    extra_updates: int = 5  # iSAM2 updates after a loop (LIO-SAM 5)
+    enabled: bool = _key(True, None, "loop closure on")
+    search_radius_m: float = _key(
+        7.0, _positive(10000.0, "m"), "candidates within this distance (historyKeyframeSearchRadius; LIO-SAM 15)"
+    )
+    horizontal_distance: bool = _key(True, None, "(x, y) distance, blind to height drift (hdl_graph_slam)")
+    min_time_gap_s: float = _key(
+        30.0, _closed(0.0, 1e7, "s"), "candidates at least this much older (historyKeyframeSearchTimeDiff)"
+    )
+    max_candidates: int = _key(2, _closed(1, 1000), "verified per query keyframe, nearest first, until one is accepted")
+    cooldown_keyframes: int = _key(5, _closed(0, 1_000_000), "after an accepted loop, skip this many query keyframes")
+    submap_neighbours: int = _key(
+        10, _closed(0, 10000), "target = match +- this many keyframes (LeGO-LOAM +-25 at 0.3 m spacing)"
+    )
+    voxel_m: float = _key(0.4, _VOXEL_M, "loop source and target downsampling")
+    icp_method: str = _key(
+        "gicp", Choices(("gicp", "point_to_plane")), "Open3D ICP; GICP rotations were 10x closer on `long`"
+    )
+    icp_max_correspondence_m: tuple[float, ...] = _key(
+        (4.0, 2.0, 1.0, 0.5), ListRange(_positive(100.0, "m"), 1, 20), "coarse-to-fine stage distances"
+    )
+    icp_max_iterations: int = _key(30, _closed(1, 10000), "ICP iterations per stage")
+    normal_radius_m: float = _key(1.2, _positive(50.0, "m"), "target normal radius for point-to-plane")
+    min_source_points: int = _key(300, _closed(1, 100_000_000), "fewer query points: no check (LIO-SAM)")
+    min_target_points: int = _key(1000, _closed(1, 100_000_000), "fewer target points: no check (LIO-SAM)")
+    min_fitness: float = _key(0.7, _FRACTION, "share of query points with a target point within the final distance")
+    max_rmse_m: float = _key(0.3, _positive(100.0, "m"), "inlier RMSE at the final distance (~0.15 typical)")
+    min_overlap: float = _key(0.5, _FRACTION, "voxel overlap |A & B| / min(|A|, |B|) (KISS-SLAM: 0.4)")
+    overlap_voxel_m: float = _key(1.0, _VOXEL_M, "voxel of the overlap test")
+    max_correction_m: float = _key(1.0, _closed(0.0, 10000.0, "m"), "ICP may move the guess this far ...")
+    correction_per_distance: float = _key(0.01, _FRACTION, "... plus this share of the path between the keyframes")
+    max_correction_deg: float = _key(10.0, _closed(0.0, 180.0, "deg"), "... and rotate it this much")
+    information_points: int = _key(
+        100, _closed(1, 100_000_000), "effective independent correspondences behind the loop information"
+    )
+    min_sigma_translation_m: float = _key(0.02, _positive(100.0, "m"), "floor added to the loop covariance")
+    min_sigma_rotation_deg: float = _key(0.5, _positive(180.0, "deg"), "floor of the loop rotation sigma")
+    huber_k: float = _key(1.345, _positive(1000.0), "Huber threshold on loop factors, in sigmas (hdl_graph_slam: 1.0)")
+    odometry_sigma_translation_m: float = _key(
+        0.01, _positive(100.0, "m"), "per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-4)"
+    )
+    odometry_sigma_rotation_deg: float = _key(
+        0.05, _positive(180.0, "deg"), "per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-6 rad^2)"
+    )
+    relinearize_threshold: float = _key(0.01, _closed(0.0, 100.0), "iSAM2 relinearization threshold (LIO-SAM 0.1)")
+    extra_updates: int = _key(5, _closed(0, 1000), "iSAM2 updates after a loop (LIO-SAM 5)")
 
     def __post_init__(self) -> None:
-        if self.icp_method not in ("point_to_plane", "gicp"):
-            raise ConfigError(f"config loop.icp_method: {self.icp_method!r} is not point_to_plane or gicp")
-        if not self.icp_max_correspondence_m or min(self.icp_max_correspondence_m) <= 0:
-            raise ConfigError("config loop.icp_max_correspondence_m: needs at least one positive distance")
+        # Checked on construction too: the ICP stages are read by code that builds a LoopConfig itself.
+        for name in ("icp_method", "icp_max_correspondence_m"):
+            _check_value(f"loop.{name}", getattr(self, name), _spec_of(LoopConfig, name))
 
 
 @dataclass(frozen=True, slots=True)
@@ -238,6 +436,72 @@ class Config:
     mapping: MappingConfig = field(default_factory=MappingConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
+
+
+def key_specs() -> Iterator[tuple[str, tuple[KeySpec, ...]]]:
+    """Every section name with the specs of its keys, in declaration order (the manual's tables)."""
+    for section in dataclasses.fields(Config):
+        cls = section.default_factory
+        yield (
+            section.name,
+            tuple(
+                KeySpec(f"{section.name}.{f.name}", f.default, f.metadata["valid"], f.metadata["meaning"])
+                for f in dataclasses.fields(cls)
+            ),
+        )
+
+
+def _spec_of(cls: type, name: str) -> Range | ListRange | Choices | None:
+    return next(f.metadata["valid"] for f in dataclasses.fields(cls) if f.name == name)
+
+
+def _check_value(path: str, value: Any, valid: Range | ListRange | Choices | None) -> None:
+    """Raise :class:`ConfigError` (one line: dotted key, value, allowed values) unless ``value`` fits."""
+    if isinstance(valid, Range):
+        if not valid.contains(value):
+            raise ConfigError(f"config {path}: {value!r} is out of range {valid}")
+    elif isinstance(valid, ListRange):
+        if not valid.length_ok(len(value)):
+            raise ConfigError(f"config {path}: a list of {len(value)} is out of range {valid}")
+        for i, entry in enumerate(value):
+            entry_range = valid.entry_range(i)
+            if not entry_range.contains(entry):
+                raise ConfigError(f"config {path}[{i}]: {entry!r} is out of range {entry_range}")
+    elif isinstance(valid, Choices) and value not in valid.names:
+        raise ConfigError(f"config {path}: {value!r} is not one of {valid}")
+
+
+def _check_section(name: str, section: Any) -> None:
+    for f in dataclasses.fields(section):
+        _check_value(f"{name}.{f.name}", getattr(section, f.name), f.metadata["valid"])
+
+
+def _check_relations(config: Config) -> None:
+    """The cross-field rules the code relies on (each key is already within its own range)."""
+    elevations = config.sensor.elevation_override_deg
+    for i in range(1, len(elevations)):
+        if elevations[i] <= elevations[i - 1]:
+            raise ConfigError(
+                f"config sensor.elevation_override_deg[{i}]: {elevations[i]!r} is not above the entry before it "
+                f"({elevations[i - 1]!r}); the table must be strictly ascending"
+            )
+    sensor = config.sensor.resolved_model
+    if config.sensor.min_range_m >= sensor.max_range_m:
+        raise ConfigError(
+            f"config sensor.min_range_m: {config.sensor.min_range_m!r} is not below the maximum range "
+            f"{sensor.max_range_m!r} m (sensor.max_range_override_m, 0: the preset's)"
+        )
+    if config.segmentation.ground_rows > sensor.n_rings:
+        raise ConfigError(
+            f"config segmentation.ground_rows: {config.segmentation.ground_rows} exceeds the "
+            f"{sensor.n_rings} rings of {sensor.name}"
+        )
+    if config.features.sharp_per_section > config.features.less_sharp_per_section:
+        raise ConfigError(
+            f"config features.sharp_per_section: {config.features.sharp_per_section} exceeds "
+            f"features.less_sharp_per_section ({config.features.less_sharp_per_section}); "
+            "sharp edges are the first of the less-sharp picks"
+        )
 
 
 def _coerce(value: Any, annotation: Any, path: str) -> Any:
@@ -259,6 +523,8 @@ def _coerce(value: Any, annotation: Any, path: str) -> Any:
     if annotation is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"config {path}: expected a number, got {value!r}")
+        if isinstance(value, int) and abs(value) > 2**63:
+            raise ConfigError(f"config {path}: an integer of {len(str(abs(value)))} digits is out of any range")
         if not math.isfinite(value):
             raise ConfigError(f"config {path}: expected a finite number, got {value!r}")
         return float(value)
@@ -277,7 +543,7 @@ def _build(cls: type, data: dict[str, Any], path: str) -> Any:
     for key in data:
         if key not in names:
             where = f"{path}.{key}" if path else key
-            raise ConfigError(f"config: unknown key '{where}' (known: {', '.join(sorted(names))})")
+            raise ConfigError(f"config: unknown key {where!r} (known: {', '.join(sorted(names))})")
     kwargs = {}
     for f in dataclasses.fields(cls):
         if f.name not in data:
@@ -291,26 +557,26 @@ def _build(cls: type, data: dict[str, Any], path: str) -> Any:
     return cls(**kwargs)
 
 
-def _validate(config: Config) -> Config:
-    if config.sensor.model not in SENSOR_MODELS:
-        raise ConfigError(
-            f"config sensor.model: unknown model {config.sensor.model!r} (known: {', '.join(SENSOR_MODELS)})"
-        )
-    try:
-        sensor = config.sensor.resolved_model
-    except ValueError as err:
-        raise ConfigError(f"config sensor: {err}") from err
-    if config.segmentation.ground_rows > sensor.n_rings:
-        raise ConfigError(
-            f"config segmentation.ground_rows: {config.segmentation.ground_rows} exceeds the "
-            f"{sensor.n_rings} rings of {sensor.name}"
-        )
+def config_from_dict(data: dict[str, Any]) -> Config:
+    """Build a validated :class:`Config` from a nested dict (as parsed from TOML): types, every
+    key's range (:func:`key_specs`) and the cross-field rules; :class:`ConfigError` otherwise."""
+    config = _build(Config, data, "")
+    for section in dataclasses.fields(config):
+        _check_section(section.name, getattr(config, section.name))
+    _check_relations(config)
     return config
 
 
-def config_from_dict(data: dict[str, Any]) -> Config:
-    """Build a validated :class:`Config` from a nested dict (as parsed from TOML)."""
-    return _validate(_build(Config, data, ""))
+def config_with(config: Config, overrides: dict[str, dict[str, Any]]) -> Config:
+    """``config`` with some keys replaced, validated as a file would be, e.g.
+    ``config_with(config, {"mapping": {"map_voxel_m": 0.1}})`` (how command-line flags enter)."""
+    data = dataclasses.asdict(config)
+    for section, values in overrides.items():
+        data.setdefault(section, {})
+        if not isinstance(data[section], dict) or not isinstance(values, dict):
+            raise ConfigError(f"config {section}: expected a table")
+        data[section].update(values)
+    return config_from_dict(data)
 
 
 def load_config(path: str | Path | None) -> Config:
@@ -322,12 +588,16 @@ def load_config(path: str | Path | None) -> Config:
         text = path.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise ConfigError(f"{path}: config file not found") from None
+    except UnicodeDecodeError as err:
+        raise ConfigError(f"{path}: not UTF-8 text (byte {err.start})") from None
     except OSError as err:
         raise ConfigError(f"{path}: cannot read config file: {err.strerror}") from err
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML: {err}") from err
+    except RecursionError:
+        raise ConfigError(f"{path}: not valid TOML: arrays or tables nested too deeply") from None
     try:
         return config_from_dict(data)
     except ConfigError as err:
@@ -358,17 +628,20 @@ def _describe_sensor(sensor: SensorModel) -> str:
 def config_to_toml(config: Config) -> str:
     """The configuration as TOML text that :func:`load_config` reads back to an equal object.
 
-    The ``[sensor]`` section ends with a comment giving the resolved sensor geometry (preset plus
-    overrides), so the numbers in force are visible even where an override is left at "preset".
+    Each numeric or choice key ends with a comment giving its allowed values; the ``[sensor]``
+    section ends with a comment giving the resolved sensor geometry (preset plus overrides), so the
+    numbers in force are visible even where an override is left at "preset".
     """
-    lines = ["# lidar3d configuration (every key optional; these are the values in force)"]
+    lines = ["# lidar3d configuration (every key optional; these are the values in force, each followed by its range)"]
     for section in dataclasses.fields(config):
         lines.append("")
         lines.append(f"[{section.name}]")
-        doc_fields = getattr(config, section.name)
-        for f in dataclasses.fields(doc_fields):
-            lines.append(f"{f.name} = {_toml_value(getattr(doc_fields, f.name))}")
-        if isinstance(doc_fields, SensorConfig):
+        values = getattr(config, section.name)
+        for f in dataclasses.fields(values):
+            line = f"{f.name} = {_toml_value(getattr(values, f.name))}"
+            valid = f.metadata["valid"]
+            lines.append(f"{line}  # {valid}" if valid is not None else line)
+        if isinstance(values, SensorConfig):
             lines.append("# 0 or [] in an *_override* key keeps the preset's value; the geometry in force:")
-            lines.append(f"# {_describe_sensor(doc_fields.resolved_model)}")
+            lines.append(f"# {_describe_sensor(values.resolved_model)}")
     return "\n".join(lines) + "\n"

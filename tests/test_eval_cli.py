@@ -294,7 +294,7 @@ def test_config_section_is_used(scene, tmp_path, capsys):
     config.write_text('[gnss]\naccepted_ins_statuses = ["INS_GOOD"]\n')
     assert "unknown INS status 'INS_GOOD'" in _error_line(args, capsys)
     config.write_text("[gnss]\norigin = [48.1, 11.5]\n")
-    assert "gnss.origin needs 3 numbers" in _error_line(args, capsys)
+    assert "gnss.origin: a list of 2 is out of range" in _error_line(args, capsys)
     config.write_text("[gnss]\nmax_association_gap_s = 0.01\n")  # below the 0.05 s log period
     assert "only 0 of" in _error_line(args, capsys)
 

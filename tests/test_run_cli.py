@@ -247,7 +247,10 @@ BAD_INPUTS = {
     "missing bag": (lambda s, t: [t / "missing.bag"], r"missing\.bag: no such file or folder"),
     "max-scans 0": (lambda s, t: [s.bag, "--max-scans", 0], r"--max-scans must be 1 or more, got 0"),
     "negative start": (lambda s, t: [s.bag, "--start", -1], r"--start must be 0 or more, got -1"),
-    "map-voxel 0": (lambda s, t: [s.bag, "--map-voxel", 0], r"--map-voxel must be positive"),
+    "map-voxel 0": (
+        lambda s, t: [s.bag, "--map-voxel", 0],
+        r"--map-voxel: config mapping\.map_voxel_m: 0\.0 is out of range \(0, 10\] m",
+    ),
     "extrinsics without span": (lambda s, t: [s.bag, "--extrinsics", s.extrinsics], r"--extrinsics needs --span"),
     "bad config key": (lambda s, t: [s.bag, "--config", _bad_config(t)], r"unknown key 'mapping\.map_voxel'"),
     "missing config": (lambda s, t: [s.bag, "--config", t / "none.toml"], r"none\.toml: config file not found"),

@@ -58,27 +58,24 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lidar3d.config import load_config
-    from lidar3d.errors import GnssError
+    from lidar3d.config import config_with, load_config
+    from lidar3d.errors import ConfigError
     from lidar3d.export.span_report import format_span_table, write_span_report
-    from lidar3d.gnss.enu import GeodeticOrigin
     from lidar3d.metrics.span_eval import evaluate_span_files
 
-    config = load_config(args.config).gnss
-    origin = None
-    if args.origin is not None:
-        try:
-            origin = GeodeticOrigin(*args.origin)
-        except ValueError as err:
-            raise GnssError(f"--origin: {err}") from err
+    config = load_config(args.config)
+    for flag, key, value in (("--time-offset", "time_offset_s", args.time_offset), ("--origin", "origin", args.origin)):
+        if value is not None:
+            try:
+                config = config_with(config, {"gnss": {key: value}})
+            except ConfigError as err:
+                raise ConfigError(f"{flag}: {err}") from None
     result = evaluate_span_files(
         args.trajectory,
         args.span,
         extrinsics_path=args.extrinsics,
         align=args.align,
-        time_offset_s=args.time_offset,
-        origin=origin,
-        config=config,
+        config=config.gnss,
     )
     write_span_report(result, args.out)
     print(format_span_table(result))

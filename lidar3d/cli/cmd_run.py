@@ -38,7 +38,7 @@ def run(args: argparse.Namespace) -> int:
     import dataclasses
 
     from lidar3d.cli.progress import ScanProgress
-    from lidar3d.config import load_config
+    from lidar3d.config import config_with, load_config
     from lidar3d.errors import ConfigError
     from lidar3d.run import run_bag
 
@@ -48,9 +48,10 @@ def run(args: argparse.Namespace) -> int:
     if args.no_loop:
         config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
     if args.map_voxel is not None:
-        if args.map_voxel <= 0:
-            raise ConfigError(f"--map-voxel must be positive, got {args.map_voxel}")
-        config = dataclasses.replace(config, mapping=dataclasses.replace(config.mapping, map_voxel_m=args.map_voxel))
+        try:
+            config = config_with(config, {"mapping": {"map_voxel_m": args.map_voxel}})
+        except ConfigError as err:
+            raise ConfigError(f"--map-voxel: {err}") from None
     if args.start < 0:
         raise ConfigError(f"--start must be 0 or more, got {args.start}")
     if args.max_scans is not None and args.max_scans <= 0:
