@@ -89,12 +89,14 @@ class Range:
 class ListRange:
     """The allowed values of a list of numbers: ``min_length``..``max_length`` entries, each in
     ``entry``; or, when ``entry`` is a tuple of ranges, exactly one entry per range (position i in
-    ``entry[i]``). A non-empty ``empty_meaning`` allows [] too and says what it means."""
+    ``entry[i]``, called ``entry_names[i]``). A non-empty ``empty_meaning`` allows [] too and says
+    what it means."""
 
     entry: Range | tuple[Range, ...]
     min_length: int = 0
     max_length: int = 0
     empty_meaning: str = ""
+    entry_names: tuple[str, ...] = ()
 
     def length_ok(self, n: int) -> bool:
         if n == 0 and self.empty_meaning:
@@ -106,10 +108,15 @@ class ListRange:
     def entry_range(self, i: int) -> Range:
         return self.entry[i] if isinstance(self.entry, tuple) else self.entry
 
+    def entry_label(self, i: int) -> str:
+        """``[i]``, with the entry's name where it has one: ``[0] (latitude_deg)``."""
+        return f"[{i}] ({self.entry_names[i]})" if i < len(self.entry_names) else f"[{i}]"
+
     def __str__(self) -> str:
         empty = f"[] ({self.empty_meaning}) or " if self.empty_meaning else ""
         if isinstance(self.entry, tuple):
-            return empty + "[" + ", ".join(str(r) for r in self.entry) + "]"
+            names = self.entry_names or ("",) * len(self.entry)
+            return empty + "[" + ", ".join(f"{n} {r}".lstrip() for n, r in zip(names, self.entry)) + "]"
         return f"{empty}{self.min_length} to {self.max_length} entries, each in {self.entry}"
 
 
@@ -338,6 +345,7 @@ class MappingConfig:
     redeskew_iterations: int = _key(4, _ITERATIONS, "iteration limit of the second registration")
 
 
+_GEODETIC_NAMES = ("latitude_deg", "longitude_deg", "height_ellipsoid_m")
 _GEODETIC_ORIGIN = (_closed(-90.0, 90.0, "deg"), _closed(-180.0, 180.0, "deg"), _closed(-1000.0, 20000.0, "m"))
 
 
@@ -353,7 +361,9 @@ class GnssConfig:
     require_fine_time: bool = _key(True, None, "drop long-header solutions whose time status is below FINE")
     max_association_gap_s: float = _key(0.2, _positive(60.0, "s"), "longest reference interval interpolated across")
     origin: tuple[float, ...] = _key(
-        (), ListRange(_GEODETIC_ORIGIN, empty_meaning="first good fix"), "ENU origin (lat_deg, lon_deg, h_ellipsoid_m)"
+        (),
+        ListRange(_GEODETIC_ORIGIN, empty_meaning="first good fix", entry_names=_GEODETIC_NAMES),
+        "ENU origin: WGS84 latitude, longitude and ellipsoidal height",
     )
     align: str = _key("se3", Choices(("se3", "yaw", "none")), "alignment: se3 (Umeyama), yaw (4-DoF) or none")
     rpe_segment_lengths_m: tuple[float, ...] = _key(
@@ -466,7 +476,7 @@ def _check_value(path: str, value: Any, valid: Range | ListRange | Choices | Non
         for i, entry in enumerate(value):
             entry_range = valid.entry_range(i)
             if not entry_range.contains(entry):
-                raise ConfigError(f"config {path}[{i}]: {entry!r} is out of range {entry_range}")
+                raise ConfigError(f"config {path}{valid.entry_label(i)}: {entry!r} is out of range {entry_range}")
     elif isinstance(valid, Choices) and value not in valid.names:
         raise ConfigError(f"config {path}: {value!r} is not one of {valid}")
 
@@ -611,6 +621,7 @@ def _toml_value(value: Any) -> str:
         return repr(value)
     if isinstance(value, str):
         escaped = value.replace("\\", "\\\\").replace('"', '\\"')
+        escaped = "".join(f"\\u{ord(c):04x}" if ord(c) < 0x20 or ord(c) == 0x7F else c for c in escaped)
         return f'"{escaped}"'
     if isinstance(value, tuple):
         return "[" + ", ".join(_toml_value(v) for v in value) + "]"

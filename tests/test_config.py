@@ -180,7 +180,7 @@ def test_eval_flags_are_checked_like_the_config(tmp_path, capsys):
     args = ["eval", str(tmp_path / "t.txt"), "--span", str(tmp_path / "s.log"), "--out", str(tmp_path / "o")]
     assert main([*args, "--origin", "91", "8.4", "100"]) == 1
     assert capsys.readouterr().err.strip() == (
-        "lidar3d eval: error: --origin: config gnss.origin[0]: 91.0 is out of range [-90, 90] deg"
+        "lidar3d eval: error: --origin: config gnss.origin[0] (latitude_deg): 91.0 is out of range [-90, 90] deg"
     )
     assert main([*args, "--time-offset", "1e10"]) == 1
     assert "--time-offset: config gnss.time_offset_s: 10000000000.0 is out of range" in capsys.readouterr().err
@@ -277,3 +277,10 @@ def test_manual_tables_match_the_metadata():
     assert page == reference.replace_tables(page), "run: python scripts/config_reference.py --write"
     for spec_ in _spec_items():
         assert f"| `{spec_.path.split('.')[1]}` |" in page, spec_.path
+
+
+def test_strings_with_control_characters_round_trip(tmp_path):
+    """Found by the fuzz test: a topic holding a newline or control byte was written as invalid TOML."""
+    config = load_config(_write(tmp_path, '[input]\ntopic = "/a\\nb\\u0001\\"c\\\\"\n'))
+    assert config.input.topic == '/a\nb\x01"c\\'
+    assert load_config(_write(tmp_path, config_to_toml(config))) == config
