@@ -5,7 +5,14 @@ Pure metric code (``association``, ``alignment``, ``ate``, ``rpe``, ``evaluation
 here writes files: the report (JSON, CSV, plots, text table) is :mod:`lidar3d.export.span_report`.
 """
 
-from lidar3d.metrics.alignment import AlignmentMode, align_trajectories, umeyama_se3, yaw_alignment
+from lidar3d.metrics.alignment import (
+    Alignment,
+    AlignmentMode,
+    align_trajectories,
+    se3_conditioning,
+    umeyama_se3,
+    yaw_alignment,
+)
 from lidar3d.metrics.association import Association, associate, interpolate_reference
 from lidar3d.metrics.ate import AbsoluteErrors, AteStatistics, absolute_errors
 from lidar3d.metrics.errors import EvaluationError
@@ -16,6 +23,7 @@ from lidar3d.metrics.statistics import ErrorStatistics
 
 __all__ = [
     "AbsoluteErrors",
+    "Alignment",
     "AlignmentMode",
     "Association",
     "AteStatistics",
@@ -34,6 +42,7 @@ __all__ = [
     "evaluate_trajectory",
     "interpolate_reference",
     "kitti_rpe",
+    "se3_conditioning",
     "umeyama_se3",
     "yaw_alignment",
 ]
