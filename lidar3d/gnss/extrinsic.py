@@ -72,6 +72,13 @@ def write_extrinsic(path: str | Path, T_imu_lidar: np.ndarray) -> None:
     write_text_atomic(path, text)
 
 
+def _yaml_problem(err: Exception) -> str:
+    """One line for a ruamel.yaml error (its own text spans several, with a caret diagram)."""
+    problem = getattr(err, "problem", None) or (str(err).splitlines() or ["unreadable"])[0]
+    mark = getattr(err, "problem_mark", None)
+    return f"{problem} (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else problem
+
+
 def _load_table(path: Path) -> dict:
     try:
         text = path.read_text(encoding="utf-8")
@@ -88,7 +95,7 @@ def _load_table(path: Path) -> dict:
         try:
             data = YAML(typ="safe", pure=True).load(text)
         except YAMLError as err:
-            raise GnssError(f"{path}: extrinsic file is not valid YAML: {err}") from err
+            raise GnssError(f"{path}: extrinsic file is not valid YAML: {_yaml_problem(err)}") from err
         if not isinstance(data, dict):
             raise GnssError(f"{path}: extrinsic YAML must be a mapping with a T_imu_lidar key")
         return data
