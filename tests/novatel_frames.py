@@ -11,15 +11,15 @@ import struct
 from lidar3d.gnss import novatel_crc32
 
 __all__ = [
-    "WEEK",
     "SECONDS",
+    "WEEK",
     "ascii_line",
-    "inspva_line",
-    "inspvax_body_fields",
+    "bestpos_body",
     "binary_frame",
     "inspva_body",
+    "inspva_line",
     "inspvax_body",
-    "bestpos_body",
+    "inspvax_body_fields",
     "insstdev_body",
     "sample_ascii_lines",
     "sample_binary_frames",

@@ -6,15 +6,21 @@ import logging
 
 import numpy as np
 import pytest
+from novatel_frames import WEEK, ascii_line
 from scipy.spatial.transform import Rotation
 
 from lidar3d.cli.main import main
 from lidar3d.gnss import GeodeticOrigin, LocalEnu, span_from_R_enu_vehicle
 from lidar3d.io.trajectory_io import write_kitti, write_tum
-from lidar3d.metrics import EvaluationError, align_trajectories, evaluate_trajectory, se3_conditioning, umeyama_se3
+from lidar3d.metrics import (
+    EvaluationError,
+    align_trajectories,
+    evaluate_trajectory,
+    se3_conditioning,
+    umeyama_se3,
+)
 from lidar3d.metrics.alignment import SE3_MIN_CONDITIONING
 from lidar3d.records import Trajectory
-from novatel_frames import WEEK, ascii_line
 
 START_S = 300000.0
 LEAP_S = 18

@@ -11,10 +11,11 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+import pytest
+from fuzz_settings import fuzz_settings
 from hypothesis import given
 from hypothesis import strategies as st
 
-from fuzz_settings import fuzz_settings
 from lidar3d.errors import Lidar3dError
 from lidar3d.gnss import read_extrinsic, write_extrinsic
 
@@ -66,6 +67,7 @@ def extrinsic_files(draw) -> tuple[str, bytes]:
 _FOLDER = tempfile.TemporaryDirectory(prefix="lidar3d-fuzz-extrinsic-")
 
 
+@pytest.mark.filterwarnings("ignore::ruamel.yaml.error.ReusedAnchorWarning")  # a mutation's "&a 1, &a 1"
 @fuzz_settings(300)
 @given(extrinsic_files())
 def test_fuzz_extrinsic_reader_raises_only_project_errors(case):

@@ -12,17 +12,17 @@ import math
 import struct
 from pathlib import Path
 
+from fuzz_settings import fuzz_settings
 from hypothesis import given
 from hypothesis import strategies as st
+from novatel_frames import sample_ascii_lines, sample_binary_frames
 
-from fuzz_settings import fuzz_settings
 from lidar3d.config import GnssConfig
 from lidar3d.errors import Lidar3dError
 from lidar3d.gnss import novatel_crc32, parse_span_bytes, span_reference
 from lidar3d.gnss.ascii_log import decode_ascii_message
 from lidar3d.gnss.binary_log import decode_binary_frame
 from lidar3d.gnss.enu import geodetic_problem
-from novatel_frames import sample_ascii_lines, sample_binary_frames
 
 REAL_FRAMES = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "real" / "novatel_ascii" / \
     "binary_frames_oem7_driver.json"

@@ -4,12 +4,6 @@
 import struct
 
 import pytest
-
-from lidar3d.config import GnssConfig
-from lidar3d.errors import GnssError
-from lidar3d.gnss import parse_span_bytes, span_reference
-from lidar3d.gnss.ascii_log import MessageRejected, decode_ascii_message
-from lidar3d.gnss.binary_log import decode_binary_frame
 from novatel_frames import (
     SECONDS,
     WEEK,
@@ -21,6 +15,12 @@ from novatel_frames import (
     inspvax_body,
     inspvax_body_fields,
 )
+
+from lidar3d.config import GnssConfig
+from lidar3d.errors import GnssError
+from lidar3d.gnss import parse_span_bytes, span_reference
+from lidar3d.gnss.ascii_log import MessageRejected, decode_ascii_message
+from lidar3d.gnss.binary_log import decode_binary_frame
 
 
 def test_non_ascii_byte_in_a_crc_valid_line_is_a_gnss_error():
@@ -96,6 +96,7 @@ def test_placeholder_position_of_an_aligning_ins_is_kept_as_decoded():
         (42, bestpos_body(lon=361.0), r"BESTPOS: longitude_deg 361.0 outside \[-180, 180\]"),
         (507, inspva_body(seconds=604800.5), r"INSPVA: GPS seconds 604800.5 outside \[0, 604800\)"),
     ],
+    ids=["inspva-nan-lat", "inspva-inf-roll", "inspvax-lat", "inspvax-inf-h", "bestpos-lon", "inspva-seconds"],
 )
 def test_binary_frames_with_bad_values_are_rejected(message_id, body, message):
     with pytest.raises(MessageRejected, match=f"^{message}$") as info:

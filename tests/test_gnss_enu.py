@@ -4,7 +4,13 @@ import numpy as np
 import pytest
 
 from lidar3d.errors import GnssError
-from lidar3d.gnss import GeodeticOrigin, LocalEnu, R_enu_vehicle_from_span, gps_to_unix_ns, unix_ns_to_gps
+from lidar3d.gnss import (
+    GeodeticOrigin,
+    LocalEnu,
+    R_enu_vehicle_from_span,
+    gps_to_unix_ns,
+    unix_ns_to_gps,
+)
 
 # Published geodetic -> ENU vectors (shared/reference/gnss-and-metrics.md section 2):
 # origin, point, published ENU, published precision (m).

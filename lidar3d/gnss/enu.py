@@ -23,7 +23,7 @@ import numpy as np
 
 from lidar3d.errors import GnssError
 
-__all__ = ["GeodeticOrigin", "LocalEnu", "R_enu_ecef", "geodetic_problem", "HEIGHT_RANGE_M"]
+__all__ = ["HEIGHT_RANGE_M", "GeodeticOrigin", "LocalEnu", "R_enu_ecef", "geodetic_problem"]
 
 # Ellipsoidal heights a land or air vehicle can have: below the Dead Sea shore (-430 m) and the
 # geoid's lowest undulation (-106 m) with margin, up to high-altitude flight. A decoded height

@@ -21,22 +21,22 @@ from typing import Mapping, TypeVar, Union
 from lidar3d.gnss.enu import geodetic_problem
 
 __all__ = [
-    "TimeStatus",
-    "InsStatus",
-    "PositionType",
-    "SolutionStatus",
-    "enum_from_name",
-    "quality_class",
+    "DATUM_NAMES",
+    "MAX_GPS_WEEK",
     "QUALITY_CLASSES",
     "InsPvaMessage",
-    "PositionMessage",
+    "InsStatus",
     "InsStdDevMessage",
-    "SpanMessage",
-    "message_problem",
-    "MAX_GPS_WEEK",
     "LogStats",
+    "PositionMessage",
+    "PositionType",
+    "SolutionStatus",
     "SpanLog",
-    "DATUM_NAMES",
+    "SpanMessage",
+    "TimeStatus",
+    "enum_from_name",
+    "message_problem",
+    "quality_class",
 ]
 
 

@@ -27,10 +27,16 @@ from lidar3d.errors import GnssError
 from lidar3d.gnss.attitude import R_enu_vehicle_from_span
 from lidar3d.gnss.enu import GeodeticOrigin, LocalEnu, geodetic_problem
 from lidar3d.gnss.gps_time import gps_to_unix_ns
-from lidar3d.gnss.novatel import InsPvaMessage, InsStatus, SpanLog, TimeStatus, enum_from_name
+from lidar3d.gnss.novatel import (
+    InsPvaMessage,
+    InsStatus,
+    SpanLog,
+    TimeStatus,
+    enum_from_name,
+)
 from lidar3d.records import Trajectory
 
-__all__ = ["InsReference", "span_reference", "accepted_statuses", "origin_from_config"]
+__all__ = ["InsReference", "accepted_statuses", "origin_from_config", "span_reference"]
 
 logger = logging.getLogger(__name__)
 

@@ -18,7 +18,11 @@ from lidar3d.metrics.ate import AbsoluteErrors, AteStatistics, absolute_errors
 from lidar3d.metrics.errors import EvaluationError
 from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
 from lidar3d.metrics.rpe import DistanceRpe, KittiRpe, distance_rpe, kitti_rpe
-from lidar3d.metrics.span_eval import SpanEvaluation, evaluate_against_span, evaluate_span_files
+from lidar3d.metrics.span_eval import (
+    SpanEvaluation,
+    evaluate_against_span,
+    evaluate_span_files,
+)
 from lidar3d.metrics.statistics import ErrorStatistics
 
 __all__ = [

@@ -37,10 +37,10 @@ import numpy as np
 from lidar3d.metrics.errors import EvaluationError
 
 __all__ = [
-    "Alignment",
-    "AlignmentMode",
     "MIN_ALIGNMENT_POSES",
     "SE3_MIN_CONDITIONING",
+    "Alignment",
+    "AlignmentMode",
     "align_trajectories",
     "se3_conditioning",
     "umeyama_se3",

@@ -13,11 +13,21 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lidar3d.metrics.alignment import MIN_ALIGNMENT_POSES, AlignmentMode, align_trajectories
+from lidar3d.metrics.alignment import (
+    MIN_ALIGNMENT_POSES,
+    AlignmentMode,
+    align_trajectories,
+)
 from lidar3d.metrics.association import associate
 from lidar3d.metrics.ate import AbsoluteErrors, AteStatistics, absolute_errors
 from lidar3d.metrics.errors import EvaluationError
-from lidar3d.metrics.rpe import KITTI_SEGMENT_LENGTHS_M, DistanceRpe, KittiRpe, distance_rpe, kitti_rpe
+from lidar3d.metrics.rpe import (
+    KITTI_SEGMENT_LENGTHS_M,
+    DistanceRpe,
+    KittiRpe,
+    distance_rpe,
+    kitti_rpe,
+)
 from lidar3d.records import Trajectory
 
 __all__ = ["Evaluation", "evaluate_trajectory"]
