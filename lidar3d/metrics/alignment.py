@@ -88,11 +88,20 @@ class Alignment:
     note: str = ""
 
 
-def _finite_positions(name: str, p: np.ndarray) -> None:
-    finite = np.isfinite(p).all(axis=-1)
+    def __post_init__(self) -> None:
+        T = np.array(self.T_reference_estimate, dtype=np.float64)
+        if T.shape != (4, 4):
+            raise ValueError(f"Alignment.T_reference_estimate must be (4, 4), got {T.shape}")
+        T.flags.writeable = False
+        object.__setattr__(self, "T_reference_estimate", T)
+
+
+def _refuse_non_finite(what: str, values: np.ndarray) -> None:
+    """:class:`EvaluationError` when any of the (N, ...) per-pose ``values`` is NaN or infinite."""
+    finite = np.isfinite(values.reshape(len(values), -1)).all(axis=1)
     if not finite.all():
         raise EvaluationError(
-            f"{name} positions hold non-finite values ({int((~finite).sum())} of {len(p)} poses, the first at "
+            f"{what} hold non-finite values ({int((~finite).sum())} of {len(values)} poses, the first at "
             f"index {int(np.argmin(finite))}); alignment needs finite poses"
         )
 
@@ -106,8 +115,8 @@ def _check_points(source_m: np.ndarray, target_m: np.ndarray) -> tuple[np.ndarra
         raise EvaluationError(
             f"only {x.shape[0]} associated pose(s); alignment needs at least {MIN_ALIGNMENT_POSES}"
         )
-    _finite_positions("source", x)
-    _finite_positions("target", y)
+    _refuse_non_finite("source positions", x)
+    _refuse_non_finite("target positions", y)
     return x, y
 
 
@@ -176,13 +185,8 @@ def align_trajectories(
     mode = AlignmentMode.parse(mode)
     T_ref = np.asarray(T_world_reference, float)
     T_est = np.asarray(T_world_estimate, float)
-    for name, T in (("reference", T_ref), ("estimate", T_est)):
-        finite = np.isfinite(T.reshape(len(T), -1)).all(axis=1)
-        if not finite.all():
-            raise EvaluationError(
-                f"{name} poses hold non-finite values ({int((~finite).sum())} of {len(T)} poses, the first at "
-                f"index {int(np.argmin(finite))}); alignment needs finite poses"
-            )
+    _refuse_non_finite("reference poses", T_ref)
+    _refuse_non_finite("estimate poses", T_est)
     ref = T_ref[:, :3, 3]
     est = T_est[:, :3, 3]
     if mode is AlignmentMode.NONE:
