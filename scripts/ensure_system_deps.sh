@@ -17,7 +17,8 @@
 set -euo pipefail
 python=${1:-python3}
 purpose=${2:-run}
-apt_locks=${LIDAR3D_APT_LOCKS:-/var/lib/dpkg/lock-frontend /var/lib/dpkg/lock /var/lib/apt/lists/lock /var/cache/apt/archives/lock}
+default_apt_locks="/var/lib/dpkg/lock-frontend /var/lib/dpkg/lock /var/lib/apt/lists/lock /var/cache/apt/archives/lock"
+apt_locks=${LIDAR3D_APT_LOCKS:-$default_apt_locks}
 apt_lock_timeout_s=${LIDAR3D_APT_LOCK_TIMEOUT_S:-300}
 apt_lock_poll_s=${LIDAR3D_APT_LOCK_POLL_S:-5}
 apt_deadline=$((SECONDS + apt_lock_timeout_s))
