@@ -138,12 +138,6 @@ def _matrix(section: dict, path: Path) -> np.ndarray:
     return T
 
 
-def _rotation_angle_rad(R: np.ndarray) -> float:
-    cos = (np.trace(R) - 1.0) / 2.0
-    sin = np.linalg.norm([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]]) / 2.0
-    return float(np.arctan2(sin, cos))
-
-
 def read_extrinsic(path: str | Path) -> np.ndarray:
     """Read ``T_imu_lidar`` (4x4 float64) from an extrinsic TOML or YAML file (by suffix).
 
@@ -189,7 +183,7 @@ def read_extrinsic(path: str | Path) -> np.ndarray:
                 f"(tolerance {MATRIX_TOLERANCE:g} m)"
             )
     if R is not None:
-        gap_rad = _rotation_angle_rad(matrix[:3, :3].T @ R)
+        gap_rad = float(Rotation.from_matrix(matrix[:3, :3].T @ R).magnitude())
         if gap_rad > MATRIX_TOLERANCE:
             raise GnssError(
                 f"{path}: T_imu_lidar.matrix and T_imu_lidar.{rotations[0]} disagree by {np.degrees(gap_rad):.3g} deg "
