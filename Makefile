@@ -3,6 +3,8 @@
 #   make test   - run the test suite
 #   make bench  - the evaluation suite (eval/run_suite.py): lidar3d beside KISS-ICP and GenZ-ICP on
 #                 every simulated scenario; writes BENCHMARKS.md and eval/results/ (BENCH_ARGS to adjust)
+#   make fuzz   - the property-based parser tests (tests/test_fuzz_*.py) with FUZZ_EXAMPLES (10000) cases
+#                 each instead of the suite's small budget; figures in docs/reliability.md
 # Each creates (or reuses) .venv and installs everything it needs, once.
 
 PYTHON ?= python3
@@ -12,9 +14,10 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 DEMO_OUT ?= demo_output
 BENCH_ARGS ?=
+FUZZ_EXAMPLES ?= 10000
 EVAL_STAMP := $(VENV)/.installed-eval
 
-.PHONY: demo test bench clean system-deps
+.PHONY: demo test bench fuzz clean system-deps
 
 all: test
 
@@ -40,6 +43,10 @@ $(TEST_STAMP): pyproject.toml $(STAMP)
 test: $(TEST_STAMP)
 	@bash scripts/ensure_system_deps.sh "$(PYTHON)" test
 	$(PY) -m pytest -q
+
+fuzz: $(TEST_STAMP)
+	LIDAR3D_FUZZ_EXAMPLES=$(FUZZ_EXAMPLES) $(PY) -m pytest -q -p no:cacheprovider --hypothesis-show-statistics \
+		tests/test_fuzz_*.py
 
 demo: $(STAMP)
 	@bash scripts/ensure_system_deps.sh "$(PYTHON)"

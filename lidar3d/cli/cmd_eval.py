@@ -69,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     if args.origin is not None:
         try:
             origin = GeodeticOrigin(*args.origin)
-        except ValueError as err:
+        except GnssError as err:
             raise GnssError(f"--origin: {err}") from err
     result = evaluate_span_files(
         args.trajectory,

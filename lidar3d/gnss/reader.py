@@ -5,12 +5,14 @@ One scanner handles all four framings. It looks for the next sync (``#``, ``%``,
 ``<OK`` command replies, ``[COM1]`` prompts, line noise) is skipped and counted as other bytes.
 
 * An ASCII candidate runs from its sync to the end of its printable run. When the run ends at a line
-  break it is a line: a bad CRC, wrong field count or unknown log there is counted (with the line
-  number) and the line skipped. A run cut off by the end of the data is a truncated last line
+  break it is a line: a bad CRC, wrong field count, unknown log or non-finite or out-of-range value
+  (:func:`~lidar3d.gnss.novatel.message_problem`) there is counted (with the line number) and the
+  line skipped. A run cut off by the end of the data is a truncated last line
   (tolerated, counted). A run that ends in binary bytes and does not decode is noise.
 * A binary candidate is read with the lengths from its header; a CRC mismatch means the sync was
   noise (or the frame is corrupt), so scanning resumes one byte later (resynchronisation). A frame
-  cut off by the end of the data is counted as truncated.
+  cut off by the end of the data is counted as truncated. A CRC-valid frame with out-of-range values
+  is counted and skipped, as an ASCII line is.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ class _Scan:
         self.ignored: collections.Counter[str] = collections.Counter()
         self.bad_crc = 0
         self.bad_format = 0
+        self.out_of_range = 0
         self.truncated = 0
         self.other_bytes = 0
         self.problems: list[str] = []
@@ -64,6 +67,8 @@ class _Scan:
             self.bad_crc += 1
         elif err.kind == "truncated":
             self.truncated += 1
+        elif err.kind == "range":
+            self.out_of_range += 1
         else:
             self.bad_format += 1
         if len(self.problems) < _MAX_PROBLEMS:
@@ -161,6 +166,7 @@ def parse_span_bytes(data: bytes, source: str = "") -> SpanLog:
         ignored=scan.ignored,
         bad_crc=scan.bad_crc,
         bad_format=scan.bad_format,
+        out_of_range=scan.out_of_range,
         truncated=scan.truncated,
         other_bytes=scan.other_bytes,
         problems=scan.problems,
