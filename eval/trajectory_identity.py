@@ -91,7 +91,8 @@ def _compare(args: argparse.Namespace) -> int:
             ok = dpos <= args.tolerance_m and drot <= args.tolerance_m
             failed |= not ok
             print(
-                f"{name:>6} {record:<10} {len(Ta):5d} poses  max |dp| {dpos:.3e} m  max |dR| {drot:.3e} rad  {'ok' if ok else 'DIFFERENT'}"
+                f"{name:>6} {record:<10} {len(Ta):5d} poses  max |dp| {dpos:.3e} m  max |dR| {drot:.3e} rad  "
+                f"{'ok' if ok else 'DIFFERENT'}"
             )
     print(f"largest difference {worst:.3e}; {'FAILED' if failed else 'identical within'} {args.tolerance_m:g}")
     return 1 if failed else 0

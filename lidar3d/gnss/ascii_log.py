@@ -224,6 +224,22 @@ def _bestpos(log: str, f: list[str], week: int, seconds: float, time_status: Tim
 
 def _insstdev(f: list[str], week: int, seconds: float, time_status: TimeStatus | None) -> InsStdDevMessage:
     _check_count("INSSTDEV", f, 14)
-    v = [float(x) for x in f[:9]]
+    lat, lon, height, north, east, up, roll, pitch, azimuth = (float(x) for x in f[:9])
     # Body fields in record order: nine standard deviations, extended status, time since update.
-    return InsStdDevMessage("INSSTDEV", week, seconds, time_status, *v, int(f[9], 16), int(f[10]))
+    return InsStdDevMessage(
+        "INSSTDEV",
+        week,
+        seconds,
+        time_status,
+        lat,
+        lon,
+        height,
+        north,
+        east,
+        up,
+        roll,
+        pitch,
+        azimuth,
+        int(f[9], 16),
+        int(f[10]),
+    )

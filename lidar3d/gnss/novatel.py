@@ -17,7 +17,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TypeVar, Union
+from typing import TypeVar
 
 __all__ = [
     "DATUM_NAMES",
@@ -145,7 +145,7 @@ def _key(name: str) -> str:
     return name.replace("_", "").upper()
 
 
-_LOOKUP = {
+_LOOKUP: dict[type[enum.IntEnum], dict[str, enum.IntEnum]] = {
     cls: {**{_key(m.name): m for m in cls}, **{_key(k): v for k, v in _ALIASES[cls].items()}}
     for cls in (TimeStatus, InsStatus, PositionType, SolutionStatus)
 }
@@ -154,9 +154,11 @@ _LOOKUP = {
 def enum_from_name(cls: type[_E], name: str) -> _E:
     """The member of ``cls`` printed as ``name`` (OEM7 or older spelling); ``ValueError`` if unknown."""
     try:
-        return _LOOKUP[cls][_key(name.strip())]
+        member = _LOOKUP[cls][_key(name.strip())]
     except KeyError:
         raise ValueError(f"unknown {cls.__name__} {name!r}") from None
+    assert isinstance(member, cls)  # _LOOKUP[cls] holds members of cls only
+    return member
 
 
 # GNSS quality classes for reports and plots, best first.
@@ -297,7 +299,7 @@ class InsStdDevMessage:
     time_since_update_s: int
 
 
-SpanMessage = Union[InsPvaMessage, PositionMessage, InsStdDevMessage]
+SpanMessage = InsPvaMessage | PositionMessage | InsStdDevMessage
 
 
 @dataclass(frozen=True, slots=True)
