@@ -284,7 +284,7 @@ def _build(cls: type, data: dict[str, Any], path: str) -> Any:
             continue
         where = f"{path}.{f.name}" if path else f.name
         hint = hints[f.name]
-        if dataclasses.is_dataclass(hint):
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
             kwargs[f.name] = _build(hint, data[f.name], where)
         else:
             kwargs[f.name] = _coerce(data[f.name], hint, where)

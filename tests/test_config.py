@@ -44,7 +44,7 @@ def test_wrong_type_names_path(tmp_path):
 def test_unknown_sensor_model(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text("[sensor]\nmodel = 'os1'\n")
-    with pytest.raises(ConfigError, match="sensor.model"):
+    with pytest.raises(ConfigError, match=r"sensor\.model"):
         load_config(path)
 
 

@@ -72,7 +72,7 @@ def test_duration_and_lookup_errors():
     sim = Simulation("loop", duration_s=2.05)
     assert len(sim) == 20
     np.testing.assert_array_equal(np.diff(sim.stamps_ns), 100_000_000)
-    with pytest.raises(SimulationError, match="lasts .* s; duration must be in"):
+    with pytest.raises(SimulationError, match=r"lasts .* s; duration must be in"):
         Simulation("loop", duration_s=10_000.0)
     with pytest.raises(SimulationError, match="shorter than one sweep"):
         Simulation("loop", duration_s=0.05)

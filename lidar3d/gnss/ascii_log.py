@@ -139,6 +139,7 @@ def decode_ascii_message(raw: bytes) -> tuple[str, SpanMessage | None]:
             week, seconds = int(header[5]), float(header[6])
             time_status = enum_from_name(TimeStatus, header[4])
         fields = _split_body(body)
+        message: SpanMessage
         if log in ("INSPVA", "INSPVAS"):
             message = _inspva(log, fields, time_status)
         elif log == "INSPVAX":
@@ -246,6 +247,22 @@ def _bestpos(log: str, f: list[str], week: int, seconds: float, time_status: Tim
 
 def _insstdev(f: list[str], week: int, seconds: float, time_status: TimeStatus | None) -> InsStdDevMessage:
     _check_count("INSSTDEV", f, 14)
-    v = [float(x) for x in f[:9]]
+    lat, lon, height, north, east, up, roll, pitch, azimuth = (float(x) for x in f[:9])
     # Body fields in record order: nine standard deviations, extended status, time since update.
-    return InsStdDevMessage("INSSTDEV", week, seconds, time_status, *v, int(f[9], 16), int(f[10]))
+    return InsStdDevMessage(
+        "INSSTDEV",
+        week,
+        seconds,
+        time_status,
+        lat,
+        lon,
+        height,
+        north,
+        east,
+        up,
+        roll,
+        pitch,
+        azimuth,
+        int(f[9], 16),
+        int(f[10]),
+    )

@@ -148,6 +148,7 @@ def decode_binary_frame(frame: bytes) -> tuple[str, SpanMessage | None]:
         raise MessageRejected("format", f"{log}: body of {header.body_length} bytes, expected {expected_length}")
     body = frame[header.header_length : header.header_length + header.body_length]
     seconds = header.gps_milliseconds / 1000.0
+    message: SpanMessage
     try:
         if log in ("INSPVA", "INSPVAS"):
             message = _inspva(log, body, header.time_status)

@@ -17,7 +17,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TypeVar, Union
+from typing import TypeVar
 
 from lidar3d.gnss.enu import geodetic_problem
 
@@ -149,7 +149,7 @@ def _key(name: str) -> str:
     return name.replace("_", "").upper()
 
 
-_LOOKUP = {
+_LOOKUP: dict[type[enum.IntEnum], dict[str, enum.IntEnum]] = {
     cls: {**{_key(m.name): m for m in cls}, **{_key(k): v for k, v in _ALIASES[cls].items()}}
     for cls in (TimeStatus, InsStatus, PositionType, SolutionStatus)
 }
@@ -158,9 +158,11 @@ _LOOKUP = {
 def enum_from_name(cls: type[_E], name: str) -> _E:
     """The member of ``cls`` printed as ``name`` (OEM7 or older spelling); ``ValueError`` if unknown."""
     try:
-        return _LOOKUP[cls][_key(name.strip())]
+        member = _LOOKUP[cls][_key(name.strip())]
     except KeyError:
         raise ValueError(f"unknown {cls.__name__} {name!r}") from None
+    assert isinstance(member, cls)  # _LOOKUP[cls] holds members of cls only
+    return member
 
 
 # GNSS quality classes for reports and plots, best first.
@@ -301,7 +303,7 @@ class InsStdDevMessage:
     time_since_update_s: int
 
 
-SpanMessage = Union[InsPvaMessage, PositionMessage, InsStdDevMessage]
+SpanMessage = InsPvaMessage | PositionMessage | InsStdDevMessage
 
 
 # Full GPS weeks (NovAtel never rolls over at 1024); 9999 is the year 2171. Larger values are corrupt

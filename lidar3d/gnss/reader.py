@@ -88,7 +88,9 @@ class _Scan:
 
     def ascii_candidate(self, start: int) -> int:
         data = self.data
-        end = _PRINTABLE_RUN.match(data, start).end()
+        printable = _PRINTABLE_RUN.match(data, start)
+        assert printable is not None  # the pattern also matches an empty run
+        end = printable.end()
         at_eof = end == len(data)
         line_end = at_eof or data[end] in b"\r\n"
         try:
@@ -151,10 +153,7 @@ class _Scan:
                 return
             start = match.start()
             self.other_bytes += start - position
-            if data[start] in b"#%":
-                position = self.ascii_candidate(start)
-            else:
-                position = self.binary_candidate(start)
+            position = self.ascii_candidate(start) if data[start] in b"#%" else self.binary_candidate(start)
 
 
 def parse_span_bytes(data: bytes, source: str = "") -> SpanLog:
@@ -169,14 +168,15 @@ def parse_span_bytes(data: bytes, source: str = "") -> SpanLog:
         out_of_range=scan.out_of_range,
         truncated=scan.truncated,
         other_bytes=scan.other_bytes,
-        problems=scan.problems,
+        problems=tuple(scan.problems),
     )
     name = source or "log"
     for problem in scan.problems:
         logger.debug("%s: %s", name, problem)
     if stats.rejected:
         logger.warning("%s: %d message(s) rejected (%s)", name, stats.rejected, stats.summary())
-    return SpanLog(ins=scan.ins, positions=scan.positions, std_devs=scan.std_devs, stats=stats, source=source)
+    ins, positions, std_devs = tuple(scan.ins), tuple(scan.positions), tuple(scan.std_devs)
+    return SpanLog(ins=ins, positions=positions, std_devs=std_devs, stats=stats, source=source)
 
 
 def read_span_log(path: str | Path) -> SpanLog:

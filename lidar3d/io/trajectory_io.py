@@ -86,11 +86,11 @@ def read_tum(path: str | Path) -> Trajectory:
             raise TrajectoryFileError(f"{path}:{lineno}: quaternion of zero length in {line!r}")
         stamps.append(_parse_stamp_ns(tokens[0]))
         rows.append(values[1:])
-    values = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+    table = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
     poses = np.tile(np.eye(4), (len(stamps), 1, 1))
     if len(stamps):
-        poses[:, :3, :3] = Rotation.from_quat(values[:, 3:7]).as_matrix()
-        poses[:, :3, 3] = values[:, :3]
+        poses[:, :3, :3] = Rotation.from_quat(table[:, 3:7]).as_matrix()
+        poses[:, :3, 3] = table[:, :3]
     try:
         return Trajectory(np.asarray(stamps, dtype=np.int64), poses)
     except ValueError as err:

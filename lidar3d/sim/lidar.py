@@ -127,9 +127,10 @@ class LidarSimulator:
         self.max_range_m = params.max_range_m or sensor.max_range_m
         self._o3d = o3d
         self._scene = o3d.t.geometry.RaycastingScene()
+        # Open3D's stubs leave out the defaults of Tensor(np_array, dtype, device): hence the type ignores.
         self._scene.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(world.vertices_m, dtype=np.float32)),
-            o3d.core.Tensor(np.ascontiguousarray(world.triangles, dtype=np.uint32)),
+            o3d.core.Tensor(np.ascontiguousarray(world.vertices_m, dtype=np.float32)),  # type: ignore[call-overload]
+            o3d.core.Tensor(np.ascontiguousarray(world.triangles, dtype=np.uint32)),  # type: ignore[call-overload]
         )
         rng = np.random.default_rng([int(seed), 0x4EF1])
         reflectivity = np.full(len(world.object_class), _VERGE)
@@ -172,7 +173,7 @@ class LidarSimulator:
         rays = np.empty((n_columns, n_rings, 6), dtype=np.float32)
         rays[:, :, :3] = origin[:, None, :]
         rays[:, :, 3:] = directions_world
-        result = self._scene.cast_rays(self._o3d.core.Tensor(rays.reshape(-1, 6)))
+        result = self._scene.cast_rays(self._o3d.core.Tensor(rays.reshape(-1, 6)))  # type: ignore[call-overload]
         t_hit = result["t_hit"].numpy()
         hit = np.flatnonzero(np.isfinite(t_hit))
         triangle = result["primitive_ids"].numpy()[hit]

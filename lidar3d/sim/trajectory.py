@@ -206,6 +206,12 @@ class RevisitPair:
     match_position_m: tuple[float, float, float]
 
 
+def _xyz(position: np.ndarray) -> tuple[float, float, float]:
+    """A (3,) position as a tuple of floats."""
+    x, y, z = (float(v) for v in position)
+    return x, y, z
+
+
 def find_revisits(
     stamps_ns: np.ndarray,
     T_world_lidar: np.ndarray,
@@ -237,8 +243,8 @@ def find_revisits(
                 match_stamp_ns=int(stamps[j]),
                 distance_m=float(distance[best]),
                 heading_change_deg=float(change),
-                query_position_m=tuple(float(v) for v in positions[i]),
-                match_position_m=tuple(float(v) for v in positions[j]),
+                query_position_m=_xyz(positions[i]),
+                match_position_m=_xyz(positions[j]),
             )
         )
     return pairs
