@@ -6,8 +6,9 @@ spline through the result gives position and heading at every instant. The speed
 (the cruise speed by default; optionally a target per stretch of road, explicit or drawn from the
 seed, with smooth transitions), slows for curvature (lateral-acceleration limit), comes to 0 m/s at
 stops and obeys acceleration and braking limits; time is integrated along the path and inverted
-with a monotone (PCHIP) interpolant. A stop is a pair of knots at the same path position: the pose
-is exactly still for the hold.
+with a monotone interpolant (PCHIP for the plain cruise-speed drive; with a speed profile or stops,
+a cubic Hermite spline whose knot slopes are the planned speeds, exact under constant acceleration).
+A stop is a pair of knots at the same path position: the pose is exactly still for the hold.
 
 The vehicle frame is the SPAN vehicle/IMU frame (x right, y forward, z up), its origin the IMU. The
 vehicle stands on the terrain: its z axis is the terrain normal (roll and pitch come from the slope),
@@ -43,8 +44,8 @@ class RouteParams:
 
     Attributes:
         corner_radius_m: radius of the arcs that round the route's corners (street centre line).
-        cruise_speed_mps: speed on straight road.
-        min_speed_mps: speed floor (also the speed at the start).
+        cruise_speed_mps: speed on straight road; with a speed profile, its upper bound.
+        min_speed_mps: speed floor except at stops (also the speed at the start).
         max_lateral_accel_mps2: curvature speed limit, v <= sqrt(a_lat / curvature).
         max_accel_mps2: acceleration limit.
         max_decel_mps2: braking limit.
@@ -214,7 +215,7 @@ class VehicleMotion:
         self.max_speed_reached_mps = float(v.max())
         dt = ds / (0.5 * (v[1:] + v[:-1]))
         t = np.concatenate([[0.0], np.cumsum(dt)])
-        # A stop is a second knot at the same path position, the hold later: PCHIP is flat between them.
+        # A stop is a second knot at the same path position, the hold later: the interpolant is flat between.
         holds = np.zeros(len(u))
         holds[stop_index] = [hold for _, hold in params.stops]
         arrive = t + np.concatenate([[0.0], np.cumsum(holds)[:-1]])
