@@ -138,7 +138,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             for workers in order:
                 shutil.rmtree(root / f"out_{run}_{workers}")
             print(
-                f"round {run + 1}: 1 worker {walls[1][-1]:.1f} s, {args.workers} workers {walls[args.workers][-1]:.1f} s, "
+                f"round {run + 1}: 1 worker {walls[1][-1]:.1f} s, "
+                f"{args.workers} workers {walls[args.workers][-1]:.1f} s, "
                 f"load average {before[0]:.1f} -> {loads[-1][1][0]:.1f}, cores busy with other work (incl. steal) "
                 f"{others[1][-1]:.2f} / {others[args.workers][-1]:.2f}",
                 file=sys.stderr,
@@ -173,7 +174,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     print(f"| {args.bags} | {n_scans} | 1 | {one:.1f} | {n_scans / one:.1f} | 1.00 |")
     print(f"| {args.bags} | {n_scans} | {args.workers} | {many:.1f} | {n_scans / many:.1f} | {one / many:.2f} |")
     print(
-        f"\nmedian of {args.runs} round(s); fastest rounds: {best_one:.1f} s vs {best_many:.1f} s, speed-up {best_one / best_many:.2f}"
+        f"\nmedian of {args.runs} round(s); fastest rounds: {best_one:.1f} s vs {best_many:.1f} s, "
+        f"speed-up {best_one / best_many:.2f}"
     )
     print(
         f"outputs identical: {identical}; {os.cpu_count()} CPUs; load average (1 min) before/after each round: "

@@ -2,9 +2,9 @@
 
 The bags are made from the simulator's `loop` scenario driven several times round: one lap is
 the scans from the start to the scan whose pose comes back nearest to the first one (a few
-centimetres away), and laps are repeated with their stamps carried on. Each run is a separate `lidar3d run` process; the peak is the largest sum
-of the resident set sizes of that process and its children (the prefetch process), sampled
-every 0.2 s. Usage:
+centimetres away), and laps are repeated with their stamps carried on. Each run is a separate
+`lidar3d run` process; the peak is the largest sum of the resident set sizes of that process and
+its children (the prefetch process), sampled every 0.2 s. Usage:
 
     .venv/bin/python eval/bench_memory.py [--scans 1000 3000] [--keep DIR]
 """
@@ -100,7 +100,8 @@ def main() -> None:
         print(f"| {r['scans']} | {r['peak_rss_mib']} | {r['keyframes']} | {r['map_points']} | {r['wall_s']} |")
     if len(rows) >= 2:
         print(
-            f"\nratio {rows[-1]['scans']} / {rows[0]['scans']} scans: {rows[-1]['peak_rss_mib'] / rows[0]['peak_rss_mib']:.2f}"
+            f"\nratio {rows[-1]['scans']} / {rows[0]['scans']} scans: "
+            f"{rows[-1]['peak_rss_mib'] / rows[0]['peak_rss_mib']:.2f}"
         )
 
 

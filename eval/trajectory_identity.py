@@ -10,9 +10,10 @@ not the rounded text files), and compares two such records pose by pose::
     .venv/bin/python eval/trajectory_identity.py run --out /tmp/after
     .venv/bin/python eval/trajectory_identity.py compare /tmp/before /tmp/after
 
-``compare`` prints the largest position (m) and rotation (rad) difference per scenario and file
-and exits 1 when any exceeds ``--tolerance-m`` (default 1e-9 m; rotations are held to the same
-number in radians) or when the pose counts or stamps differ.
+``--no-loop`` runs odometry and mapping alone. ``compare`` prints the largest position (m) and
+rotation (rad) difference per scenario and file and exits 1 when any exceeds ``--tolerance-m``
+(default 1e-9 m; rotations are held to the same number in radians) or when the pose counts or
+stamps differ.
 
 The scenarios (default ``loop hilly fast``, full length, seed 0) are taken from the evaluation
 suite's simulation cache (``eval/cache``, see ``suite_cache.py``), so both runs see the same bags.
@@ -33,6 +34,8 @@ RECORDS = ("trajectory", "odometry", "keyframes")
 
 
 def _run(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from suite_cache import DEFAULT_CACHE, ensure_scenario
 
     import lidar3d
@@ -45,7 +48,10 @@ def _run(args: argparse.Namespace) -> int:
     for name in args.scenarios:
         cached = ensure_scenario(name, args.seed, args.duration, cache_dir=Path(args.cache or DEFAULT_CACHE))
         run_dir = out / name
-        outcome = run_bag(cached.bag, run_dir, config=Config(), prefetch=False)
+        config = Config()
+        if args.no_loop:
+            config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
+        outcome = run_bag(cached.bag, run_dir, config=config, prefetch=False)
         result = outcome.result
         for record in RECORDS:
             trajectory = getattr(result, record)
@@ -90,8 +96,9 @@ def _compare(args: argparse.Namespace) -> int:
             worst = max(worst, dpos, drot)
             ok = dpos <= args.tolerance_m and drot <= args.tolerance_m
             failed |= not ok
+            verdict = "ok" if ok else "DIFFERENT"
             print(
-                f"{name:>6} {record:<10} {len(Ta):5d} poses  max |dp| {dpos:.3e} m  max |dR| {drot:.3e} rad  {'ok' if ok else 'DIFFERENT'}"
+                f"{name:>6} {record:<10} {len(Ta):5d} poses  max |dp| {dpos:.3e} m  max |dR| {drot:.3e} rad  {verdict}"
             )
     print(f"largest difference {worst:.3e}; {'FAILED' if failed else 'identical within'} {args.tolerance_m:g}")
     return 1 if failed else 0
@@ -106,6 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     run.add_argument("--seed", type=int, default=0)
     run.add_argument("--duration", type=float, default=None, help="first seconds only (default: full length)")
     run.add_argument("--cache", default=None, help="simulation cache folder (default: eval/cache)")
+    run.add_argument("--no-loop", action="store_true", help="loop closure off (odometry and mapping alone)")
     run.set_defaults(func=_run)
     compare = sub.add_parser("compare", help="compare two records pose by pose")
     compare.add_argument("before")

@@ -450,13 +450,14 @@ class Config:
 
 def key_specs() -> Iterator[tuple[str, tuple[KeySpec, ...]]]:
     """Every section name with the specs of its keys, in declaration order (the manual's tables)."""
-    for section in dataclasses.fields(Config):
-        cls = section.default_factory
+    defaults = Config()
+    for section in dataclasses.fields(defaults):
+        values = getattr(defaults, section.name)
         yield (
             section.name,
             tuple(
-                KeySpec(f"{section.name}.{f.name}", f.default, f.metadata["valid"], f.metadata["meaning"])
-                for f in dataclasses.fields(cls)
+                KeySpec(f"{section.name}.{f.name}", getattr(values, f.name), f.metadata["valid"], f.metadata["meaning"])
+                for f in dataclasses.fields(values)
             ),
         )
 
@@ -560,7 +561,7 @@ def _build(cls: type, data: dict[str, Any], path: str) -> Any:
             continue
         where = f"{path}.{f.name}" if path else f.name
         hint = hints[f.name]
-        if dataclasses.is_dataclass(hint):
+        if isinstance(hint, type) and dataclasses.is_dataclass(hint):
             kwargs[f.name] = _build(hint, data[f.name], where)
         else:
             kwargs[f.name] = _coerce(data[f.name], hint, where)

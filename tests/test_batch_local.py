@@ -223,7 +223,7 @@ def test_ctrl_c_then_kill_then_resume_redoes_only_unfinished_bags(tmp_path):
     process = _start_cli(args)
     _wait_for(lambda: published("a"), process)
     os.killpg(process.pid, signal.SIGINT)
-    stdout, stderr = process.communicate(timeout=120)
+    _, stderr = process.communicate(timeout=120)
     assert process.returncode == 130, stderr
     assert re.search(r"interrupted; finished: a__scans; stopped: .*; not started: .*c__scans", stderr)
     rows = _rows(out)

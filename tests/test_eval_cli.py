@@ -79,7 +79,7 @@ def scene(tmp_path_factory):
     lines.insert(5, _bestpos_line(START_S + 0.25))
     log.write_text("\r\n".join(lines) + "\r\n")
     # the SLAM estimate: 10 Hz lidar poses between the reference samples, in a SLAM world frame
-    t_est, T_est_imu = _drive(10.0, 69.0)
+    t_est, _ = _drive(10.0, 69.0)
     t_est = t_est + 0.025
     _, T_fine = _drive(40.0, 70.0)  # exact IMU poses at 40 Hz include the 0.025 s offsets
     T_imu_est = T_fine[1::4][: len(t_est)]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
 
 import numpy as np
 import pytest
@@ -78,8 +79,8 @@ def _reference_selection(segmentation, smoothness, config: FeatureConfig):
     def suppress(i):
         picked[i] = True
         for step in (1, -1):
-            for l in range(1, w + 1):
-                j, k = i + step * l, i + step * (l - 1)
+            for offset in range(1, w + 1):
+                j, k = i + step * offset, i + step * (offset - 1)
                 if not 0 <= j < n or segmentation.row[j] != segmentation.row[k]:
                     break
                 if abs(segmentation.column[j] - segmentation.column[k]) > config.neighbour_max_column_gap:
@@ -166,7 +167,7 @@ def test_feature_invariants(scene):
     # no pick lies inside the suppression span of another
     lo, hi = suppression_spans(segmentation, 5, 10)
     picks = sorted(set(less_sharp) | set(flat))
-    for a, b in zip(picks[:-1], picks[1:]):
+    for a, b in itertools.pairwise(picks):
         assert not (lo[b] <= a < hi[b] or lo[a] <= b < hi[a])
     lookup = {tuple(p): i for i, p in enumerate(segmentation.points)}
     sharp_in_order = [lookup[tuple(p)] for p in features.sharp.points]

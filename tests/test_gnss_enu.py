@@ -3,7 +3,14 @@
 import numpy as np
 import pytest
 
-from lidar3d.gnss import GeodeticOrigin, LocalEnu, R_enu_vehicle_from_span, gps_to_unix_ns, unix_ns_to_gps
+from lidar3d.errors import GnssError
+from lidar3d.gnss import (
+    GeodeticOrigin,
+    LocalEnu,
+    R_enu_vehicle_from_span,
+    gps_to_unix_ns,
+    unix_ns_to_gps,
+)
 
 # Published geodetic -> ENU vectors (shared/reference/gnss-and-metrics.md section 2):
 # origin, point, published ENU, published precision (m).
@@ -77,10 +84,16 @@ def test_origin_maps_to_zero_and_distances_are_preserved():
 
 
 def test_origin_rejects_bad_values():
-    with pytest.raises(ValueError, match="latitude"):
+    with pytest.raises(GnssError, match=r"^ENU origin: latitude_deg 91.0 outside \[-90, 90\]$"):
         GeodeticOrigin(91.0, 0.0, 0.0)
-    with pytest.raises(ValueError, match="finite"):
+    with pytest.raises(GnssError, match=r"^ENU origin: longitude_deg nan is not finite$"):
         GeodeticOrigin(10.0, float("nan"), 0.0)
+    with pytest.raises(GnssError, match=r"longitude_deg 180.5 outside \[-180, 180\]"):
+        GeodeticOrigin(10.0, 180.5, 0.0)
+    with pytest.raises(GnssError, match=r"height_ellipsoid_m 25000.0 outside \[-1000, 20000\] m"):
+        GeodeticOrigin(10.0, 10.0, 25000.0)
+    with pytest.raises(GnssError, match="height_ellipsoid_m inf is not finite"):
+        GeodeticOrigin(10.0, 10.0, float("inf"))
 
 
 def test_local_level_rotation_far_from_origin():

@@ -401,7 +401,8 @@ def test_no_pointcloud2_topic_lists_topics(tmp_path, storage):
     write_topics_bag(path, storage, {"/chatter": "std_msgs/msg/String", "/status": "std_msgs/msg/String"})
     with pytest.raises(
         BagError,
-        match=rf"{path.name}: no sensor_msgs/msg/PointCloud2 topic; topics: /chatter \(std_msgs/msg/String, 2\), /status \(std_msgs/msg/String, 2\)",
+        match=rf"{path.name}: no sensor_msgs/msg/PointCloud2 topic; "
+        r"topics: /chatter \(std_msgs/msg/String, 2\), /status \(std_msgs/msg/String, 2\)",
     ):
         read_all(path)
 
@@ -458,7 +459,8 @@ def test_data_length_disagreeing_with_shape(tmp_path, storage):
     expected = 32 * len(scan)
     with pytest.raises(
         PointCloudError,
-        match=rf"{path.name}: /velodyne_points at stamp {scan.stamp_ns} ns: data holds {expected - 32} bytes but width\*height\*point_step = {len(scan)}\*1\*32 = {expected}",
+        match=rf"{path.name}: /velodyne_points at stamp {scan.stamp_ns} ns: data holds {expected - 32} bytes "
+        rf"but width\*height\*point_step = {len(scan)}\*1\*32 = {expected}",
     ):
         read_all(path)
 

@@ -72,8 +72,8 @@ def test_cli_info_prints_every_bag(tmp_path, capsys):
     assert f"bag:          {tmp_path / 'b'} (ros2)" in out
     assert "lidar topic:  /velodyne_points (2 scans)" in out and "lidar topic:  /velodyne_points (3 scans)" in out
     assert (
-        "point fields: x:FLOAT32@0 y:FLOAT32@4 z:FLOAT32@8 intensity:FLOAT32@16 ring:UINT16@20 time:FLOAT32@24 (point_step 32"
-        in out
+        "point fields: x:FLOAT32@0 y:FLOAT32@4 z:FLOAT32@8 intensity:FLOAT32@16 ring:UINT16@20 time:FLOAT32@24 "
+        "(point_step 32" in out
     )
     assert "sensor model: vlp16 (16 rings in the first cloud)" in out
     assert f"first stamp:  {STAMP_NS // 10**9}.{STAMP_NS % 10**9:09d}" in out
@@ -161,7 +161,8 @@ def _bad_bags(tmp_path):
     n = len(scan)
     cases["data length mismatch"] = (
         [str(short)],
-        f"{short}: first cloud on /velodyne_points: data holds {32 * n - 32} bytes but width*height*point_step = {n}*1*32 = {32 * n}",
+        f"{short}: first cloud on /velodyne_points: data holds {32 * n - 32} bytes "
+        f"but width*height*point_step = {n}*1*32 = {32 * n}",
     )
     odd = tmp_path / "odd.bag"
     fields = tuple(PointField(f.name, f.offset, 11 if f.name == "time" else f.datatype) for f in parts.fields)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 
 import numpy as np
 import pytest
@@ -49,14 +50,13 @@ def _angle_deg(R: np.ndarray) -> float:
 def _first_pass_target(match_scan: int, neighbours: int = 10):
     """Target around first-pass keyframe scan ``match_scan`` from true poses (match frame)."""
     gt = _sim().ground_truth.T_world_lidar
-    scans = [
-        s
-        for s in range(
+    scans = list(
+        range(
             max(0, match_scan - neighbours * KEYFRAME_STRIDE),
             match_scan + neighbours * KEYFRAME_STRIDE + 1,
             KEYFRAME_STRIDE,
         )
-    ]
+    )
     clouds = [_cloud(s) for s in scans]
     poses = gt[scans]
     match = scans.index(match_scan)
@@ -144,7 +144,7 @@ def test_information_matches_open3d_after_the_adjoint():
 
 
 def test_config_rejects_unknown_icp_method():
-    with pytest.raises(ConfigError, match="loop.icp_method"):
+    with pytest.raises(ConfigError, match=r"loop\.icp_method"):
         LoopConfig(icp_method="ndt")
     with pytest.raises(ConfigError, match="icp_max_correspondence_m"):
         LoopConfig(icp_max_correspondence_m=())
@@ -165,7 +165,7 @@ def _drifting_keyframes():
     scans = list(range(0, len(sim), KEYFRAME_STRIDE))
     bias = exp_se3(np.array([0.002, 0.0, 0.0, 0.0, np.radians(0.003), np.radians(0.01)]))
     raw = [gt[scans[0]]]
-    for a, b in zip(scans[:-1], scans[1:]):
+    for a, b in itertools.pairwise(scans):
         raw.append(raw[-1] @ invert(gt[a]) @ gt[b] @ bias)
     keyframes = []
     for k, s in enumerate(scans):
@@ -181,7 +181,7 @@ def test_loop_closer_finds_the_revisit_and_corrects_the_drift():
     correction = np.eye(4)
     poses = []
     updates = 0
-    for k, keyframe in enumerate(keyframes):
+    for k in range(len(keyframes)):
         poses.append(correction @ raw[k])  # the pipeline's running pose follows each correction
         update = closer.on_keyframe(keyframes[: k + 1], np.array(poses))
         if update is not None:

@@ -146,7 +146,9 @@ def test_span_evaluation_writes_a_report_and_an_ate(full_run):
     assert (full_run / "eval" / "report.json").is_file()
     assert evaluation is not None and evaluation.report == str(full_run / "eval")
     ate = evaluation.ate.translation_3d_m
-    assert ate.n >= 20 and ate.rmse < 0.05
+    # 3 s, 11 m, nearly straight: SE(3) is ill-conditioned there (its 0.006 m came with an 86 deg rotation
+    # ATE), so the evaluation falls back to yaw; the lidar start frame's 1.5 deg tilt remains (issue 21)
+    assert ate.n >= 20 and ate.rmse < 0.1
 
 
 # -- options -----------------------------------------------------------------------------------

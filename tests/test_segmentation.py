@@ -44,7 +44,7 @@ def test_projection_columns_follow_rep105_azimuth():
     # forward (+x) is the middle column, left (+y) three quarters, right (-y) one quarter, back the seam
     scan = _scan([[10, 0, 0], [0, 10, 0], [0, -10, 0], [-10, 0.001, 0], [-10, -0.001, 0]], ring=[8, 8, 8, 8, 8])
     image = project_scan(scan, CONFIG.sensor, CONFIG.segmentation)
-    rows, columns = np.nonzero(image.occupied)
+    rows, _ = np.nonzero(image.occupied)
     assert set(rows) == {8}
     assert image.point_index[8, 900] == 0
     assert image.point_index[8, 1350] == 1

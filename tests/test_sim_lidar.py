@@ -42,7 +42,7 @@ def _to_world(points, poses):
 def test_points_lie_on_the_mesh_only_with_per_point_poses(fast):
     scene = _scene(fast.world)
     gt = fast.ground_truth
-    t = (gt.stamps_ns - fast.start_time_ns) * 1e-9
+    t = fast.route_seconds(gt.stamps_ns)
     speed = np.linalg.norm(fast.motion.velocity_at(t), axis=1)
     yaw_rate = np.abs(np.diff(np.unwrap(np.arctan2(gt.T_world_lidar[:, 1, 0], gt.T_world_lidar[:, 0, 0])))) / 0.1
     moving = int(np.argmax(speed[:-1]))  # fastest scan

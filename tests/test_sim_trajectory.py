@@ -8,7 +8,14 @@ from lidar3d.sim import SCENARIOS, RouteParams, Scenario, Simulation, StreetLayo
 from lidar3d.sim.trajectory import group_revisits
 
 # (length range in m, minimum number of revisit events)
-EXPECTED = {"loop": ((380, 440), 1), "long": ((1200, 1500), 2), "hilly": ((450, 550), 1), "fast": ((620, 720), 1)}
+EXPECTED = {
+    "loop": ((380, 440), 1),
+    "long": ((1200, 1500), 2),
+    "hilly": ((450, 550), 1),
+    "fast": ((620, 720), 1),
+    "stops": ((380, 440), 1),
+    "blind_turn": ((480, 560), 0),
+}
 
 
 @pytest.mark.parametrize("name", sorted(SCENARIOS))
@@ -17,9 +24,11 @@ def test_route_length_speed_and_revisits(name):
     (lo, hi), n_events = EXPECTED[name]
     assert lo < sim.motion.length_m < hi
     t = np.arange(0.0, sim.motion.duration_s, 0.05)
-    speed = np.linalg.norm(sim.motion.velocity_at(t), axis=1)
-    assert speed.min() > 1.95 and speed.max() < 10.05
-    assert speed.max() > 0.95 * sim.scenario.route.cruise_speed_mps
+    speed = np.linalg.norm(sim.motion.velocity_at(t)[:, :2], axis=1)  # horizontal: without the body's heave
+    route = sim.scenario.route
+    floor = 0.0 if route.stops else route.min_speed_mps
+    assert speed.min() > floor - 0.05 and speed.max() < route.cruise_speed_mps + 0.05
+    assert speed.max() > (0.85 if route.random_speed_min_mps else 0.95) * route.cruise_speed_mps
     events = group_revisits(sim.revisits())
     assert len(events) >= n_events
     for event in events:
@@ -32,6 +41,37 @@ def test_long_has_opposite_direction_revisits():
     median_turn = [np.median([p.heading_change_deg for p in e]) for e in events]
     assert sum(m > 150 for m in median_turn) >= 2
     assert sum(m < 30 for m in median_turn) >= 1
+
+
+def test_stops_scenario_brakes_stands_and_varies_its_speed():
+    sim = Simulation("stops")
+    holds = [end - start for start, end in sim.motion.stop_intervals_s]
+    assert len(holds) == 3 and min(holds) >= 3.0 and max(holds) <= 6.0
+    t = np.arange(0.0, sim.motion.duration_s, 0.05)
+    speed = np.linalg.norm(sim.motion.velocity_at(t)[:, :2], axis=1)
+    moving = speed[speed > 0.5]
+    assert moving.max() > 8.0 and np.percentile(moving, 10) < 4.0
+    for start, end in sim.motion.stop_intervals_s:
+        during = (t > start) & (t < end)
+        np.testing.assert_array_equal(sim.motion.velocity_at(t[during]), 0.0)
+    lidar = sim.lidar_params
+    assert lidar.elevation_error_sigma_deg > 0 and lidar.range_bias_sigma_m > 0 and lidar.stamp_jitter_s > 0
+    assert sim.scenario.route.vibrates
+
+
+def test_blind_turn_comes_at_the_end_of_open_land():
+    sim = Simulation("blind_turn")
+    layout, kinds = sim.scenario.layout, sim.world.block_kind
+    assert all(kinds[i, j] == "open" for i in (2, 3) for j in (0, 1))  # around the approach and the corner
+    assert layout.street_x_m[2] - layout.street_x_m[1] == 240.0
+    t = np.arange(0.0, sim.motion.duration_s, 0.05)
+    poses = sim.motion.pose_at(t)
+    yaw_rate = np.rad2deg(np.gradient(np.unwrap(np.arctan2(poses[:, 1, 1], poses[:, 0, 1])), t))
+    corner = (poses[:, 0, 3] > 340.0) & (poses[:, 1, 3] < 20.0)  # the first turn, on open land
+    assert yaw_rate[corner].max() > 25.0 and np.sum(yaw_rate[corner] > 15.0) * 0.05 > 2.5
+    approach = (poses[:, 0, 3] > 130.0) & (poses[:, 0, 3] < 340.0) & (poses[:, 1, 3] < 0.0)
+    speed = np.linalg.norm(sim.motion.velocity_at(t[approach])[:, :2], axis=1)
+    assert speed.max() - speed.min() > 1.5  # a varying speed across the field
 
 
 def test_vehicle_stands_on_the_terrain_with_slope_attitude():
@@ -72,11 +112,13 @@ def test_duration_and_lookup_errors():
     sim = Simulation("loop", duration_s=2.05)
     assert len(sim) == 20
     np.testing.assert_array_equal(np.diff(sim.stamps_ns), 100_000_000)
-    with pytest.raises(SimulationError, match="lasts .* s; duration must be in"):
+    with pytest.raises(SimulationError, match=r"lasts .* s; duration must be in"):
         Simulation("loop", duration_s=10_000.0)
     with pytest.raises(SimulationError, match="shorter than one sweep"):
         Simulation("loop", duration_s=0.05)
-    with pytest.raises(SimulationError, match="unknown scenario 'nope'; known: loop, long, hilly, fast"):
+    with pytest.raises(
+        SimulationError, match="unknown scenario 'nope'; known: loop, long, hilly, fast, stops, blind_turn"
+    ):
         Simulation("nope")
     with pytest.raises(SimulationError, match="unknown sensor model 'vlp64'"):
         Simulation("loop", sensor="vlp64")

@@ -94,7 +94,7 @@ def _expand(item: str | Path) -> list[tuple[Path, str]]:
         return [_kind_of_file(path)]
     if _GLOB_CHARS & set(text):
         matches = sorted(glob.glob(os.path.expanduser(text), recursive=True))
-        found: list[tuple[Path, str]] = []
+        found = []
         for match in matches:
             match_path = Path(match)
             if match_path.is_dir():

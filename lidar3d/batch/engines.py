@@ -20,6 +20,7 @@ reported from Ray tasks, only finished bags.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import signal
@@ -177,10 +178,8 @@ def _run_pool(
             except KeyboardInterrupt:
                 _drain(events, sink, run)
                 for pid in run.pids:
-                    try:
+                    with contextlib.suppress(ProcessLookupError, PermissionError):
                         os.kill(pid, signal.SIGKILL)
-                    except (ProcessLookupError, PermissionError):
-                        pass
                 for future in pending:
                     run.unfinished.append(futures[future])
                 pending = set()
@@ -226,7 +225,8 @@ def run_local(
                     JobResult(
                         job.name,
                         JobStatus.FAILED,
-                        error="the worker process died while processing this bag (crash in native code or out of memory)",
+                        error="the worker process died while processing this bag "
+                        "(crash in native code or out of memory)",
                     )
                 )
             elif job.name in run.started or not run.started:

@@ -261,7 +261,8 @@ def _cell(field: str, kind: str, row: Mapping[str, Any]) -> str:
         return f'<td class="plots" data-value="{len(value or [])}">{links}</td>'
     if field == "span_log":
         text = Path(value).name if value else ""
-        return f'<td class="path" data-value="{esc(text)}" title="{esc(str(value or ""))} ({esc(str(row.get("span_match") or ""))})">{esc(text)}</td>'
+        title = f"{esc(str(value or ''))} ({esc(str(row.get('span_match') or ''))})"
+        return f'<td class="path" data-value="{esc(text)}" title="{title}">{esc(text)}</td>'
     if field == "error":
         text = row.get("error") or row.get("note") or ""
         css = "error" if row.get("error") else "note"
@@ -278,7 +279,8 @@ def _html_text(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> st
     esc = html.escape
     rpe_label = f"{meta['rpe_distance_m']:g} m" if meta.get("rpe_distance_m") else "distance"
     heads = "".join(
-        f'<th data-key="{f}" data-kind="{k}" scope="col"><button type="button">{esc(h.format(rpe=rpe_label))}</button></th>'
+        f'<th data-key="{f}" data-kind="{k}" scope="col">'
+        f'<button type="button">{esc(h.format(rpe=rpe_label))}</button></th>'
         for f, h, k in _COLUMNS
     )
     body = "\n".join(

@@ -29,7 +29,7 @@ import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 from lidar3d.batch.discovery import BagInput, discover_bags
 from lidar3d.batch.engines import Engine, run_local, run_ray
@@ -94,16 +94,20 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
-@contextlib.contextmanager
-def _batch_lock(out: Path) -> Iterator[None]:
-    """Hold an exclusive lock on the batch folder (one batch per folder at a time)."""
+def _open_lock_file(out: Path) -> TextIO:
+    """The batch folder's lock file, opened for appending (the folder is created if missing)."""
     state = out / STATE_DIR
     try:
         state.mkdir(parents=True, exist_ok=True)
-        handle = open(state / "lock", "a+")
+        return open(state / "lock", "a+")
     except OSError as err:
         raise OutputError(f"{out}: cannot create the batch folder: {err.strerror or err}") from err
-    try:
+
+
+@contextlib.contextmanager
+def _batch_lock(out: Path) -> Iterator[None]:
+    """Hold an exclusive lock on the batch folder (one batch per folder at a time)."""
+    with _open_lock_file(out) as handle:
         try:
             import fcntl
         except ImportError:  # pragma: no cover - not POSIX: no locking
@@ -121,8 +125,6 @@ def _batch_lock(out: Path) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(handle.fileno(), fcntl.LOCK_UN)
-    finally:
-        handle.close()
 
 
 def _remove_staging(out: Path) -> None:

@@ -84,8 +84,8 @@ class TimeRangeCache:
             value = compute()
             self._data[key] = list(value) if value is not None else None
             self._dirty = True
-        value = self._data[key]
-        return (int(value[0]), int(value[1])) if value else None
+        stored = self._data[key]
+        return (int(stored[0]), int(stored[1])) if stored else None
 
     def save(self) -> None:
         if self.path is None or not self._dirty:
@@ -144,7 +144,8 @@ def expand_pattern(pattern: str, bag: BagInput) -> str:
         text = pattern.format_map(_placeholders(bag))
     except KeyError as err:
         raise ConfigError(
-            f"pattern {pattern!r}: unknown placeholder {{{err.args[0]}}} (known: {{stem}}, {{name}}, {{parent}}, {{folder}})"
+            f"pattern {pattern!r}: unknown placeholder {{{err.args[0]}}} "
+            "(known: {stem}, {name}, {parent}, {folder})"
         ) from None
     except (ValueError, IndexError) as err:
         raise ConfigError(f"pattern {pattern!r}: {err}") from None
@@ -279,6 +280,7 @@ def match_span_logs(
                         best[0].resolve(), f"pattern, {_describe_overlap(best[1], bag_range)}"
                     )
     else:
+        assert span_dir is not None  # neither given returned above
         candidates = _log_candidates(Path(span_dir))
         logs = [(path.resolve(), ranges.log(path)) for path in candidates]
         usable = [(p, r) for p, r in logs if r is not None]

@@ -14,6 +14,8 @@ SCENARIO_HELP = {
     "long": "~1.4 km, three revisits and a 240 m feature-poor stretch of open land",
     "hilly": "~500 m loop over hills with slopes up to 8 degrees",
     "fast": "~700 m at up to 10 m/s with sharp 90-degree corners",
+    "stops": "~400 m town drive at 2-9 m/s with three stops of 3-6 s, vibration and calibration error",
+    "blind_turn": "~520 m: 240 m of open land at 4.5-8 m/s ending in a 90-degree turn on open land",
 }
 
 

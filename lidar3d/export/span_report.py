@@ -5,7 +5,8 @@ Turns a :class:`~lidar3d.metrics.span_eval.SpanEvaluation` (computed by
 :func:`~lidar3d.metrics.span_eval.evaluate_against_span`, which writes nothing) into files. Written
 (atomically) into the output folder by :func:`write_span_report`:
 
-* ``report.json``: inputs, settings, origin, alignment, counts, ATE/RPE statistics (NaN -> null);
+* ``report.json``: inputs, settings, origin, alignment (used, requested, conditioning, note on a
+  fallback), counts, warnings, ATE/RPE statistics (NaN -> null);
 * ``errors.csv``: one row per associated pose: stamp, reference and aligned estimate ENU position,
   3-D/horizontal/vertical/rotation error, INS status, position type, GNSS quality class;
 * ``reference_lidar_tum.txt`` / ``estimate_aligned_tum.txt``: the associated poses in ENU as TUM
@@ -86,6 +87,7 @@ def span_report_dict(result: SpanEvaluation) -> dict:
                 "ignored": dict(stats.ignored),
                 "bad_crc": stats.bad_crc,
                 "bad_format": stats.bad_format,
+                "out_of_range": stats.out_of_range,
                 "truncated": stats.truncated,
                 "problems": list(stats.problems),
             },
@@ -105,7 +107,14 @@ def span_report_dict(result: SpanEvaluation) -> dict:
                 "path_length_m": ev.path_length_m,
                 "gnss_quality": counts,
             },
-            "alignment": {"mode": ev.alignment.value, "T_reference_estimate": ev.T_reference_estimate},
+            "alignment": {
+                "mode": ev.alignment.value,
+                "requested": ev.alignment_requested.value,
+                "conditioning": ev.alignment_conditioning,
+                "note": ev.alignment_note,
+                "T_reference_estimate": ev.T_reference_estimate,
+            },
+            "warnings": list(result.warnings),
             "ate": dataclasses.asdict(ev.ate),
             "rpe_kitti": dataclasses.asdict(ev.kitti),
             "rpe_distance": [dataclasses.asdict(d) for d in ev.distance_rpe],
@@ -316,4 +325,5 @@ def format_span_table(result: SpanEvaluation) -> str:
         )
     else:
         lines.append("  KITTI RPE: no segment of 100 m or more")
+    lines.extend(f"warning: {line}" for line in result.warnings)
     return "\n".join(lines)

@@ -36,6 +36,7 @@ from lidar3d.gnss.novatel import (
     SpanMessage,
     TimeStatus,
     enum_from_name,
+    message_problem,
 )
 
 __all__ = ["ASCII_LOGS", "MessageRejected", "decode_ascii_message"]
@@ -58,8 +59,10 @@ _SHORT_HEADER_FIELDS = 3
 class MessageRejected(GnssError):
     """A message candidate that must not be used.
 
-    ``kind`` is "crc" (checksum mismatch), "format" (CRC valid but wrong field count or value) or
-    "truncated" (no complete ``*xxxxxxxx`` checksum).
+    ``kind`` is "crc" (checksum mismatch), "format" (CRC valid but wrong field count, a value that
+    does not parse, or a non-ASCII byte), "range" (well-formed, but a value is non-finite or out of
+    range: :func:`~lidar3d.gnss.novatel.message_problem`) or "truncated" (no complete
+    ``*xxxxxxxx`` checksum).
     """
 
     def __init__(self, kind: str, detail: str) -> None:
@@ -69,15 +72,26 @@ class MessageRejected(GnssError):
 
 def _split_body(body: str) -> list[str]:
     if '"' in body:
-        return next(csv.reader([body], skipinitialspace=False))
+        try:
+            return next(csv.reader([body], skipinitialspace=False))
+        except csv.Error as err:
+            raise ValueError(f"body is not a valid comma-separated list ({err})") from None
     return body.split(",")
+
+
+def _checked(name_full: str, log: str, message: SpanMessage) -> tuple[str, SpanMessage]:
+    problem = message_problem(message)
+    if problem is not None:
+        raise MessageRejected("range", f"{name_full}: {problem}")
+    return log, message
 
 
 def decode_ascii_message(raw: bytes) -> tuple[str, SpanMessage | None]:
     """Decode one ASCII log (``#...*crc`` or ``%...*crc``, without the line ending).
 
     Returns ``(log_name, message)``; ``message`` is ``None`` for a CRC-valid log we do not decode
-    (its name is returned without the trailing "A"). Raises :class:`MessageRejected`.
+    (its name is returned without the trailing "A"). Raises :class:`MessageRejected` (one line)
+    for anything else, including non-ASCII bytes and non-finite or out-of-range values.
     """
     raw = raw.rstrip()  # trailing blanks after the checksum are harmless
     if not raw or raw[:1] not in (b"#", b"%"):
@@ -96,7 +110,13 @@ def decode_ascii_message(raw: bytes) -> tuple[str, SpanMessage | None]:
     crc_actual = novatel_crc32(payload)
     if crc_actual != crc_expected:
         raise MessageRejected("crc", f"CRC mismatch: line says {crc_expected:08x}, computed {crc_actual:08x}")
-    text = payload.decode("ascii")
+    try:
+        text = payload.decode("ascii")
+    except UnicodeDecodeError as err:
+        name = payload.split(b",", 1)[0].split(b";", 1)[0].decode("ascii", "replace")[:40]
+        raise MessageRejected(
+            "format", f"{name}: non-ASCII byte 0x{payload[err.start]:02x} at column {err.start + 2}"
+        ) from None
     header_text, semicolon, body = text.partition(";")
     if not semicolon:
         raise MessageRejected("format", "no ';' between header and body")
@@ -119,15 +139,18 @@ def decode_ascii_message(raw: bytes) -> tuple[str, SpanMessage | None]:
             week, seconds = int(header[5]), float(header[6])
             time_status = enum_from_name(TimeStatus, header[4])
         fields = _split_body(body)
+        message: SpanMessage
         if log in ("INSPVA", "INSPVAS"):
-            return log, _inspva(log, fields, time_status)
-        if log == "INSPVAX":
-            return log, _inspvax(fields, week, seconds, time_status)
-        if log in ("BESTPOS", "BESTGNSSPOS"):
-            return log, _bestpos(log, fields, week, seconds, time_status)
-        return log, _insstdev(fields, week, seconds, time_status)
+            message = _inspva(log, fields, time_status)
+        elif log == "INSPVAX":
+            message = _inspvax(fields, week, seconds, time_status)
+        elif log in ("BESTPOS", "BESTGNSSPOS"):
+            message = _bestpos(log, fields, week, seconds, time_status)
+        else:
+            message = _insstdev(fields, week, seconds, time_status)
     except ValueError as err:
         raise MessageRejected("format", f"{name_full}: {err}") from None
+    return _checked(name_full, log, message)
 
 
 def _check_count(log: str, fields: list[str], expected: int, at_least: bool = False) -> None:
@@ -224,6 +247,22 @@ def _bestpos(log: str, f: list[str], week: int, seconds: float, time_status: Tim
 
 def _insstdev(f: list[str], week: int, seconds: float, time_status: TimeStatus | None) -> InsStdDevMessage:
     _check_count("INSSTDEV", f, 14)
-    v = [float(x) for x in f[:9]]
+    lat, lon, height, north, east, up, roll, pitch, azimuth = (float(x) for x in f[:9])
     # Body fields in record order: nine standard deviations, extended status, time since update.
-    return InsStdDevMessage("INSSTDEV", week, seconds, time_status, *v, int(f[9], 16), int(f[10]))
+    return InsStdDevMessage(
+        "INSSTDEV",
+        week,
+        seconds,
+        time_status,
+        lat,
+        lon,
+        height,
+        north,
+        east,
+        up,
+        roll,
+        pitch,
+        azimuth,
+        int(f[9], 16),
+        int(f[10]),
+    )

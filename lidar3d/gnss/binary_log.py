@@ -29,6 +29,7 @@ from lidar3d.gnss.novatel import (
     SolutionStatus,
     SpanMessage,
     TimeStatus,
+    message_problem,
 )
 
 __all__ = ["BINARY_LOGS", "LONG_SYNC", "SHORT_SYNC", "BinaryHeader", "decode_binary_frame", "frame_length"]
@@ -124,8 +125,18 @@ def decode_binary_frame(frame: bytes) -> tuple[str, SpanMessage | None]:
 
     Returns ``(log_name, message)``; ``message`` is ``None`` for logs we do not decode (the name is
     then the log's name where we know it, else ``"ID<n>"``) and for command responses. Raises
-    :class:`MessageRejected` for a known log with the wrong body length or an invalid enum value.
+    :class:`MessageRejected` for a frame whose length disagrees with its header, a known log with
+    the wrong body length or an invalid enum value ("format"), and for non-finite or out-of-range
+    values (:func:`~lidar3d.gnss.novatel.message_problem`, "range").
     """
+    frame = bytes(frame)
+    if frame[:3] not in (LONG_SYNC, SHORT_SYNC):
+        raise MessageRejected("format", "binary frame does not start with a NovAtel sync (AA 44 12 or AA 44 13)")
+    length = frame_length(frame, 0)
+    if not length or length != len(frame):
+        raise MessageRejected(
+            "format", f"binary frame of {len(frame)} bytes, its header says {length or 'an implausible length'}"
+        )
     header = _header(frame)
     known = BINARY_LOGS.get(header.message_id)
     if known is None:
@@ -137,16 +148,22 @@ def decode_binary_frame(frame: bytes) -> tuple[str, SpanMessage | None]:
         raise MessageRejected("format", f"{log}: body of {header.body_length} bytes, expected {expected_length}")
     body = frame[header.header_length : header.header_length + header.body_length]
     seconds = header.gps_milliseconds / 1000.0
+    message: SpanMessage
     try:
         if log in ("INSPVA", "INSPVAS"):
-            return log, _inspva(log, body, header.time_status)
-        if log == "INSPVAX":
-            return log, _inspvax(body, header.gps_week, seconds, header.time_status)
-        if log in ("BESTPOS", "BESTGNSSPOS"):
-            return log, _bestpos(log, body, header.gps_week, seconds, header.time_status)
-        return log, _insstdev(body, header.gps_week, seconds, header.time_status)
+            message = _inspva(log, body, header.time_status)
+        elif log == "INSPVAX":
+            message = _inspvax(body, header.gps_week, seconds, header.time_status)
+        elif log in ("BESTPOS", "BESTGNSSPOS"):
+            message = _bestpos(log, body, header.gps_week, seconds, header.time_status)
+        else:
+            message = _insstdev(body, header.gps_week, seconds, header.time_status)
     except ValueError as err:
         raise MessageRejected("format", f"{log}: {err}") from None
+    problem = message_problem(message)
+    if problem is not None:
+        raise MessageRejected("range", f"{log}: {problem}")
+    return log, message
 
 
 def _inspva(log: str, body: bytes, time_status: TimeStatus | None) -> InsPvaMessage:

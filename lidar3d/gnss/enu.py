@@ -21,7 +21,14 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["GeodeticOrigin", "LocalEnu", "R_enu_ecef"]
+from lidar3d.errors import GnssError
+
+__all__ = ["HEIGHT_RANGE_M", "GeodeticOrigin", "LocalEnu", "R_enu_ecef", "geodetic_problem"]
+
+# Ellipsoidal heights a land or air vehicle can have: below the Dead Sea shore (-430 m) and the
+# geoid's lowest undulation (-106 m) with margin, up to high-altitude flight. A decoded height
+# outside is a corrupt value, not a position.
+HEIGHT_RANGE_M = (-1000.0, 20000.0)
 
 
 @lru_cache(maxsize=1)
@@ -52,9 +59,32 @@ def R_enu_ecef(latitude_deg, longitude_deg) -> np.ndarray:
     return np.stack(rows, axis=-2)
 
 
+def geodetic_problem(latitude_deg: float, longitude_deg: float, height_ellipsoid_m: float) -> str | None:
+    """Why a WGS84 position is unusable, in a few words, or ``None`` when it is usable.
+
+    Usable: all three finite, |latitude| <= 90 deg, |longitude| <= 180 deg, ellipsoidal height in
+    :data:`HEIGHT_RANGE_M`.
+    """
+    values = {"latitude_deg": latitude_deg, "longitude_deg": longitude_deg, "height_ellipsoid_m": height_ellipsoid_m}
+    for name, value in values.items():
+        if not np.isfinite(value):
+            return f"{name} {value} is not finite"
+    if not -90.0 <= latitude_deg <= 90.0:
+        return f"latitude_deg {latitude_deg} outside [-90, 90]"
+    if not -180.0 <= longitude_deg <= 180.0:
+        return f"longitude_deg {longitude_deg} outside [-180, 180]"
+    low, high = HEIGHT_RANGE_M
+    if not low <= height_ellipsoid_m <= high:
+        return f"height_ellipsoid_m {height_ellipsoid_m} outside [{low:g}, {high:g}] m"
+    return None
+
+
 @dataclass(frozen=True, slots=True)
 class GeodeticOrigin:
-    """Origin of a local ENU frame: WGS84 latitude/longitude (degrees) and ellipsoidal height (m)."""
+    """Origin of a local ENU frame: WGS84 latitude/longitude (degrees) and ellipsoidal height (m).
+
+    Raises :class:`~lidar3d.errors.GnssError` for a position :func:`geodetic_problem` refuses.
+    """
 
     latitude_deg: float
     longitude_deg: float
@@ -62,12 +92,14 @@ class GeodeticOrigin:
 
     def __post_init__(self) -> None:
         for name in ("latitude_deg", "longitude_deg", "height_ellipsoid_m"):
-            value = float(getattr(self, name))
-            if not np.isfinite(value):
-                raise ValueError(f"GeodeticOrigin.{name} must be finite, got {value}")
+            try:
+                value = float(getattr(self, name))
+            except (TypeError, ValueError):
+                raise GnssError(f"ENU origin: {name} {getattr(self, name)!r} is not a number") from None
             object.__setattr__(self, name, value)
-        if not -90.0 <= self.latitude_deg <= 90.0:
-            raise ValueError(f"GeodeticOrigin.latitude_deg must be in [-90, 90], got {self.latitude_deg}")
+        problem = geodetic_problem(self.latitude_deg, self.longitude_deg, self.height_ellipsoid_m)
+        if problem is not None:
+            raise GnssError(f"ENU origin: {problem}")
 
 
 class LocalEnu:

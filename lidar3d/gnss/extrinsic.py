@@ -18,6 +18,16 @@ The rotation is given by exactly one of ``quaternion_xyzw`` (x, y, z, w; unit no
 (roll, pitch, yaw in degrees about the fixed x, y, z axes, i.e. R = Rz(yaw) Ry(pitch) Rx(roll), the
 URDF/ROS ``rpy`` convention). Optionally ``[imu_to_antenna]`` with ``translation_m`` (the
 SETINSTRANSLATION ANT1 lever arm); it is not needed for evaluation against INS solutions.
+
+Instead, or as well, the whole transform as calibration tools write it, row-major 4x4::
+
+    [T_imu_lidar]
+    matrix = [[0.0, -1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.3], [0.0, 0.0, 1.0, 0.8], [0.0, 0.0, 0.0, 1.0]]
+
+Its last row must be 0 0 0 1 and its rotation orthonormal with determinant +1, each within
+:data:`MATRIX_TOLERANCE`. Given beside ``translation_m`` and/or a rotation, the two must agree: the
+translations within :data:`MATRIX_TOLERANCE` metres, the rotations within :data:`MATRIX_TOLERANCE`
+radians.
 """
 
 from __future__ import annotations
@@ -36,7 +46,10 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover
     import tomli as tomllib
 
-__all__ = ["read_extrinsic", "write_extrinsic"]
+__all__ = ["MATRIX_TOLERANCE", "read_extrinsic", "write_extrinsic"]
+
+MATRIX_TOLERANCE = 1e-6
+_KEYS = ("matrix", "translation_m", "quaternion_xyzw", "rpy_deg")
 
 
 def _numbers(values: np.ndarray) -> str:
@@ -59,6 +72,13 @@ def write_extrinsic(path: str | Path, T_imu_lidar: np.ndarray) -> None:
     write_text_atomic(path, text)
 
 
+def _yaml_problem(err: Exception) -> str:
+    """One line for a ruamel.yaml error (its own text spans several, with a caret diagram)."""
+    problem = getattr(err, "problem", None) or (str(err).splitlines() or ["unreadable"])[0]
+    mark = getattr(err, "problem_mark", None)
+    return f"{problem} (line {mark.line + 1}, column {mark.column + 1})" if mark is not None else problem
+
+
 def _load_table(path: Path) -> dict:
     try:
         text = path.read_text(encoding="utf-8")
@@ -66,6 +86,8 @@ def _load_table(path: Path) -> dict:
         raise GnssError(f"{path}: extrinsic file not found") from None
     except OSError as err:
         raise GnssError(f"{path}: cannot read extrinsic file: {err.strerror}") from err
+    except UnicodeDecodeError as err:
+        raise GnssError(f"{path}: extrinsic file is not UTF-8 text (byte {err.start})") from None
     if path.suffix.lower() in (".yaml", ".yml"):
         from ruamel.yaml import YAML
         from ruamel.yaml.error import YAMLError
@@ -73,7 +95,7 @@ def _load_table(path: Path) -> dict:
         try:
             data = YAML(typ="safe", pure=True).load(text)
         except YAMLError as err:
-            raise GnssError(f"{path}: extrinsic file is not valid YAML: {err}") from err
+            raise GnssError(f"{path}: extrinsic file is not valid YAML: {_yaml_problem(err)}") from err
         if not isinstance(data, dict):
             raise GnssError(f"{path}: extrinsic YAML must be a mapping with a T_imu_lidar key")
         return data
@@ -83,40 +105,88 @@ def _load_table(path: Path) -> dict:
         raise GnssError(f"{path}: extrinsic file is not valid TOML: {err}") from err
 
 
-def _vector(section: dict, key: str, size: int, path: Path) -> np.ndarray:
+def _numeric(section: dict, key: str, shape: tuple[int, ...], wanted: str, path: Path) -> np.ndarray:
     try:
         value = np.asarray(section[key], dtype=float)
-    except (ValueError, TypeError) as err:
-        raise GnssError(f"{path}: T_imu_lidar.{key} must be {size} numbers") from err
-    if value.shape != (size,) or not np.all(np.isfinite(value)):
-        raise GnssError(f"{path}: T_imu_lidar.{key} must be {size} finite numbers, got {section[key]!r}")
+    except (ValueError, TypeError, OverflowError) as err:
+        raise GnssError(f"{path}: T_imu_lidar.{key} must be {wanted}") from err
+    if value.shape != shape or not np.all(np.isfinite(value)):
+        raise GnssError(f"{path}: T_imu_lidar.{key} must be {wanted} (finite), got {section[key]!r}"[:300])
     return value
 
 
+def _vector(section: dict, key: str, size: int, path: Path) -> np.ndarray:
+    return _numeric(section, key, (size,), f"{size} numbers", path)
+
+
+def _matrix(section: dict, path: Path) -> np.ndarray:
+    """The checked 4x4 ``T_imu_lidar.matrix`` (row-major), its last row set exactly to 0 0 0 1."""
+    T = _numeric(section, "matrix", (4, 4), "a 4x4 matrix (4 rows of 4 numbers)", path)
+    if np.max(np.abs(T[3] - [0.0, 0.0, 0.0, 1.0])) > MATRIX_TOLERANCE:
+        raise GnssError(f"{path}: T_imu_lidar.matrix last row must be 0 0 0 1, got {T[3].tolist()}")
+    R = T[:3, :3]
+    orthonormality = float(np.max(np.abs(R.T @ R - np.eye(3))))
+    if orthonormality > MATRIX_TOLERANCE:
+        raise GnssError(
+            f"{path}: T_imu_lidar.matrix rotation is not orthonormal (|R^T R - I| = {orthonormality:.2e} "
+            f"> {MATRIX_TOLERANCE:g})"
+        )
+    det = float(np.linalg.det(R))
+    if abs(det - 1.0) > MATRIX_TOLERANCE:
+        raise GnssError(f"{path}: T_imu_lidar.matrix rotation has determinant {det:.6f}, not +1 (a reflection)")
+    T[3] = [0.0, 0.0, 0.0, 1.0]
+    return T
+
+
 def read_extrinsic(path: str | Path) -> np.ndarray:
-    """Read ``T_imu_lidar`` (4x4 float64) from an extrinsic TOML or YAML file (by suffix)."""
+    """Read ``T_imu_lidar`` (4x4 float64) from an extrinsic TOML or YAML file (by suffix).
+
+    Raises :class:`~lidar3d.errors.GnssError` (one line naming the file and key) for anything the
+    module docstring does not allow.
+    """
     path = Path(path)
     data = _load_table(path)
     section = data.get("T_imu_lidar")
     if not isinstance(section, dict):
         raise GnssError(f"{path}: extrinsic file has no T_imu_lidar table")
-    unknown = set(section) - {"translation_m", "quaternion_xyzw", "rpy_deg"}
+    unknown = {str(key) for key in section} - set(_KEYS)
     if unknown:
-        raise GnssError(f"{path}: unknown key(s) in T_imu_lidar: {', '.join(sorted(unknown))}")
-    if "translation_m" not in section:
-        raise GnssError(f"{path}: T_imu_lidar needs translation_m (3 numbers)")
+        raise GnssError(f"{path}: unknown key(s) in T_imu_lidar: {', '.join(sorted(unknown))}"[:300])
     rotations = [key for key in ("quaternion_xyzw", "rpy_deg") if key in section]
-    if len(rotations) != 1:
-        raise GnssError(f"{path}: T_imu_lidar needs exactly one of quaternion_xyzw (4) or rpy_deg (3)")
-    t = _vector(section, "translation_m", 3, path)
-    if rotations[0] == "quaternion_xyzw":
+    matrix = _matrix(section, path) if "matrix" in section else None
+    if matrix is None and "translation_m" not in section:
+        raise GnssError(f"{path}: T_imu_lidar needs translation_m (3 numbers) or matrix (4x4)")
+    if len(rotations) > 1 or (matrix is None and not rotations):
+        raise GnssError(
+            f"{path}: T_imu_lidar needs exactly one of quaternion_xyzw (4) or rpy_deg (3)"
+            + ("" if matrix is None else " beside matrix, or neither")
+        )
+    t = _vector(section, "translation_m", 3, path) if "translation_m" in section else None
+    R = None
+    if rotations and rotations[0] == "quaternion_xyzw":
         q = _vector(section, "quaternion_xyzw", 4, path)
         if abs(np.linalg.norm(q) - 1.0) > 1e-6:
             raise GnssError(f"{path}: T_imu_lidar.quaternion_xyzw is not a unit quaternion")
         R = Rotation.from_quat(q).as_matrix()
-    else:
+    elif rotations:
         R = Rotation.from_euler("xyz", _vector(section, "rpy_deg", 3, path), degrees=True).as_matrix()
-    T = np.eye(4)
-    T[:3, :3] = R
-    T[:3, 3] = t
-    return T
+    if matrix is None:
+        T = np.eye(4)
+        T[:3, :3] = R
+        T[:3, 3] = t
+        return T
+    if t is not None:
+        gap_m = float(np.linalg.norm(matrix[:3, 3] - t))
+        if gap_m > MATRIX_TOLERANCE:
+            raise GnssError(
+                f"{path}: T_imu_lidar.matrix and T_imu_lidar.translation_m disagree by {gap_m:.3g} m "
+                f"(tolerance {MATRIX_TOLERANCE:g} m)"
+            )
+    if R is not None:
+        gap_rad = float(Rotation.from_matrix(matrix[:3, :3].T @ R).magnitude())
+        if gap_rad > MATRIX_TOLERANCE:
+            raise GnssError(
+                f"{path}: T_imu_lidar.matrix and T_imu_lidar.{rotations[0]} disagree by {np.degrees(gap_rad):.3g} deg "
+                f"(tolerance {MATRIX_TOLERANCE:g} rad)"
+            )
+    return matrix

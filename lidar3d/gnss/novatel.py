@@ -17,10 +17,13 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from types import MappingProxyType
-from typing import TypeVar, Union
+from typing import TypeVar
+
+from lidar3d.gnss.enu import geodetic_problem
 
 __all__ = [
     "DATUM_NAMES",
+    "MAX_GPS_WEEK",
     "QUALITY_CLASSES",
     "InsPvaMessage",
     "InsStatus",
@@ -33,6 +36,7 @@ __all__ = [
     "SpanMessage",
     "TimeStatus",
     "enum_from_name",
+    "message_problem",
     "quality_class",
 ]
 
@@ -145,7 +149,7 @@ def _key(name: str) -> str:
     return name.replace("_", "").upper()
 
 
-_LOOKUP = {
+_LOOKUP: dict[type[enum.IntEnum], dict[str, enum.IntEnum]] = {
     cls: {**{_key(m.name): m for m in cls}, **{_key(k): v for k, v in _ALIASES[cls].items()}}
     for cls in (TimeStatus, InsStatus, PositionType, SolutionStatus)
 }
@@ -154,9 +158,11 @@ _LOOKUP = {
 def enum_from_name(cls: type[_E], name: str) -> _E:
     """The member of ``cls`` printed as ``name`` (OEM7 or older spelling); ``ValueError`` if unknown."""
     try:
-        return _LOOKUP[cls][_key(name.strip())]
+        member = _LOOKUP[cls][_key(name.strip())]
     except KeyError:
         raise ValueError(f"unknown {cls.__name__} {name!r}") from None
+    assert isinstance(member, cls)  # _LOOKUP[cls] holds members of cls only
+    return member
 
 
 # GNSS quality classes for reports and plots, best first.
@@ -297,7 +303,58 @@ class InsStdDevMessage:
     time_since_update_s: int
 
 
-SpanMessage = Union[InsPvaMessage, PositionMessage, InsStdDevMessage]
+SpanMessage = InsPvaMessage | PositionMessage | InsStdDevMessage
+
+
+# Full GPS weeks (NovAtel never rolls over at 1024); 9999 is the year 2171. Larger values are corrupt
+# (and would overflow int64 nanoseconds past week 15250).
+MAX_GPS_WEEK = 9999
+_SECONDS_PER_WEEK = 604_800.0
+
+
+# INS statuses before the INS has a position: receivers print placeholder positions then (a ProPak6
+# prints lat -90, lon 0, height -6356752 m, the Earth's centre, while INS_ALIGNING).
+_NO_POSITION_INS_STATUSES = frozenset({InsStatus.INS_INACTIVE, InsStatus.INS_ALIGNING, InsStatus.WAITING_INITIALPOS})
+
+
+def _claims_position(message: InsPvaMessage | PositionMessage) -> bool:
+    """False when the message itself says it holds no position (its values are placeholders)."""
+    if message.position_type is PositionType.NONE:
+        return False
+    if isinstance(message, PositionMessage):
+        return message.solution_status is SolutionStatus.SOL_COMPUTED
+    return message.ins_status not in _NO_POSITION_INS_STATUSES
+
+
+def message_problem(message: SpanMessage) -> str | None:
+    """Why a decoded message's values are unusable, or ``None``.
+
+    Unusable: GPS week outside 0..:data:`MAX_GPS_WEEK` or seconds of week not in [0, 604800); for
+    INS and position messages a non-finite latitude, longitude or height, or (INS messages) a
+    non-finite velocity or attitude angle; and, where the message claims a position, one that
+    :func:`~lidar3d.gnss.enu.geodetic_problem` refuses (|lat| > 90, |lon| > 180, height outside
+    -1000..20000 m). A message that says it has no position (position type NONE, solution status
+    other than SOL_COMPUTED, INS inactive/aligning/waiting for a position) carries placeholder
+    positions, which are kept as decoded: the INS status filter drops them later. A message refused
+    here is CRC-valid but corrupt (or a receiver bug) and must never become a reference pose or an
+    ENU origin.
+    """
+    if not 0 <= message.gps_week <= MAX_GPS_WEEK:
+        return f"GPS week {message.gps_week} outside [0, {MAX_GPS_WEEK}]"
+    if not 0.0 <= message.gps_seconds < _SECONDS_PER_WEEK:
+        return f"GPS seconds {message.gps_seconds} outside [0, 604800)"
+    if isinstance(message, InsStdDevMessage):
+        return None
+    names = ["latitude_deg", "longitude_deg", "height_ellipsoid_m"]
+    if isinstance(message, InsPvaMessage):
+        names += ["north_velocity_mps", "east_velocity_mps", "up_velocity_mps", "roll_deg", "pitch_deg", "azimuth_deg"]
+    for name in names:
+        value = getattr(message, name)
+        if not math.isfinite(value):
+            return f"{name} {value} is not finite"
+    if _claims_position(message):
+        return geodetic_problem(message.latitude_deg, message.longitude_deg, message.height_ellipsoid_m)
+    return None
 
 
 @dataclass(frozen=True, slots=True)
@@ -309,6 +366,8 @@ class LogStats:
         ignored: CRC-valid messages of logs we do not decode, by name ("CORRIMUDATA": 1280, ...).
         bad_crc: ASCII lines or binary frames whose CRC did not match (never used).
         bad_format: CRC-valid messages with a wrong field count, length or value (never used).
+        out_of_range: CRC-valid, well-formed messages whose values are non-finite or out of range
+            (:func:`message_problem`; never used).
         truncated: an incomplete last line or frame at the end of the data (tolerated).
         other_bytes: bytes outside any message (NMEA, command replies, prompts, noise).
         problems: the first few rejected messages, "line 12: bad CRC ..." / "byte 4711: ...".
@@ -321,6 +380,7 @@ class LogStats:
     truncated: int
     other_bytes: int
     problems: tuple[str, ...]
+    out_of_range: int = 0
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "decoded", MappingProxyType(dict(self.decoded)))
@@ -329,8 +389,8 @@ class LogStats:
 
     @property
     def rejected(self) -> int:
-        """Messages seen but not used because they were corrupt or malformed."""
-        return self.bad_crc + self.bad_format
+        """Messages seen but not used because they were corrupt, malformed or out of range."""
+        return self.bad_crc + self.bad_format + self.out_of_range
 
     def summary(self) -> str:
         """One line: decoded and ignored counts and rejections."""
@@ -338,7 +398,10 @@ class LogStats:
         parts = [f"decoded {decoded}"]
         if self.ignored:
             parts.append("ignored " + ", ".join(f"{k} x{v}" for k, v in sorted(self.ignored.items())))
-        parts.append(f"{self.bad_crc} bad CRC, {self.bad_format} malformed, {self.truncated} truncated")
+        counts = f"{self.bad_crc} bad CRC, {self.bad_format} malformed, {self.truncated} truncated"
+        if self.out_of_range:
+            counts += f", {self.out_of_range} with non-finite or out-of-range values"
+        parts.append(counts)
         return "; ".join(parts)
 
 

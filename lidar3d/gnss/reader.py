@@ -5,12 +5,14 @@ One scanner handles all four framings. It looks for the next sync (``#``, ``%``,
 ``<OK`` command replies, ``[COM1]`` prompts, line noise) is skipped and counted as other bytes.
 
 * An ASCII candidate runs from its sync to the end of its printable run. When the run ends at a line
-  break it is a line: a bad CRC, wrong field count or unknown log there is counted (with the line
-  number) and the line skipped. A run cut off by the end of the data is a truncated last line
+  break it is a line: a bad CRC, wrong field count, unknown log or non-finite or out-of-range value
+  (:func:`~lidar3d.gnss.novatel.message_problem`) there is counted (with the line number) and the
+  line skipped. A run cut off by the end of the data is a truncated last line
   (tolerated, counted). A run that ends in binary bytes and does not decode is noise.
 * A binary candidate is read with the lengths from its header; a CRC mismatch means the sync was
   noise (or the frame is corrupt), so scanning resumes one byte later (resynchronisation). A frame
-  cut off by the end of the data is counted as truncated.
+  cut off by the end of the data is counted as truncated. A CRC-valid frame with out-of-range values
+  is counted and skipped, as an ASCII line is.
 """
 
 from __future__ import annotations
@@ -47,6 +49,7 @@ class _Scan:
         self.ignored: collections.Counter[str] = collections.Counter()
         self.bad_crc = 0
         self.bad_format = 0
+        self.out_of_range = 0
         self.truncated = 0
         self.other_bytes = 0
         self.problems: list[str] = []
@@ -64,6 +67,8 @@ class _Scan:
             self.bad_crc += 1
         elif err.kind == "truncated":
             self.truncated += 1
+        elif err.kind == "range":
+            self.out_of_range += 1
         else:
             self.bad_format += 1
         if len(self.problems) < _MAX_PROBLEMS:
@@ -83,7 +88,9 @@ class _Scan:
 
     def ascii_candidate(self, start: int) -> int:
         data = self.data
-        end = _PRINTABLE_RUN.match(data, start).end()
+        printable = _PRINTABLE_RUN.match(data, start)
+        assert printable is not None  # the pattern also matches an empty run
+        end = printable.end()
         at_eof = end == len(data)
         line_end = at_eof or data[end] in b"\r\n"
         try:
@@ -146,10 +153,7 @@ class _Scan:
                 return
             start = match.start()
             self.other_bytes += start - position
-            if data[start] in b"#%":
-                position = self.ascii_candidate(start)
-            else:
-                position = self.binary_candidate(start)
+            position = self.ascii_candidate(start) if data[start] in b"#%" else self.binary_candidate(start)
 
 
 def parse_span_bytes(data: bytes, source: str = "") -> SpanLog:
@@ -161,16 +165,18 @@ def parse_span_bytes(data: bytes, source: str = "") -> SpanLog:
         ignored=scan.ignored,
         bad_crc=scan.bad_crc,
         bad_format=scan.bad_format,
+        out_of_range=scan.out_of_range,
         truncated=scan.truncated,
         other_bytes=scan.other_bytes,
-        problems=scan.problems,
+        problems=tuple(scan.problems),
     )
     name = source or "log"
     for problem in scan.problems:
         logger.debug("%s: %s", name, problem)
     if stats.rejected:
         logger.warning("%s: %d message(s) rejected (%s)", name, stats.rejected, stats.summary())
-    return SpanLog(ins=scan.ins, positions=scan.positions, std_devs=scan.std_devs, stats=stats, source=source)
+    ins, positions, std_devs = tuple(scan.ins), tuple(scan.positions), tuple(scan.std_devs)
+    return SpanLog(ins=ins, positions=positions, std_devs=std_devs, stats=stats, source=source)
 
 
 def read_span_log(path: str | Path) -> SpanLog:

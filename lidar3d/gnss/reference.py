@@ -25,9 +25,15 @@ import numpy as np
 from lidar3d.config import GnssConfig
 from lidar3d.errors import GnssError
 from lidar3d.gnss.attitude import R_enu_vehicle_from_span
-from lidar3d.gnss.enu import GeodeticOrigin, LocalEnu
+from lidar3d.gnss.enu import GeodeticOrigin, LocalEnu, geodetic_problem
 from lidar3d.gnss.gps_time import gps_to_unix_ns
-from lidar3d.gnss.novatel import InsPvaMessage, InsStatus, SpanLog, TimeStatus, enum_from_name
+from lidar3d.gnss.novatel import (
+    InsPvaMessage,
+    InsStatus,
+    SpanLog,
+    TimeStatus,
+    enum_from_name,
+)
 from lidar3d.records import Trajectory
 
 __all__ = ["InsReference", "accepted_statuses", "origin_from_config", "span_reference"]
@@ -118,7 +124,7 @@ def origin_from_config(values: tuple[float, ...]) -> GeodeticOrigin | None:
         raise GnssError(f"gnss.origin needs 3 numbers (lat_deg, lon_deg, h_ellipsoid_m), got {len(values)}")
     try:
         return GeodeticOrigin(*values)
-    except ValueError as err:
+    except GnssError as err:
         raise GnssError(f"gnss.origin: {err}") from err
 
 
@@ -171,6 +177,16 @@ def span_reference(
             f"{name}: no usable pose: none of the {len(good_status)} accepted {source} solutions has a "
             "fine GPS time (time status below FINE or week 0)"
         )
+    # Only with statuses such as INS_ALIGNING accepted: their positions are placeholders (an ENU
+    # origin must never come from one).
+    usable = [m for m in kept if geodetic_problem(m.latitude_deg, m.longitude_deg, m.height_ellipsoid_m) is None]
+    if len(usable) < len(kept):
+        if not usable:
+            raise GnssError(f"{name}: no usable pose: no accepted {source} solution has a usable position")
+        logger.warning(
+            "%s: %d accepted %s solutions without a usable position dropped", name, len(kept) - len(usable), source
+        )
+        kept = usable
     stamps = gps_to_unix_ns(
         [m.gps_week for m in kept], [m.gps_seconds for m in kept], config.leap_seconds, config.time_offset_s
     )

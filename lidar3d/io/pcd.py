@@ -28,15 +28,19 @@ def write_pcd(path: str | Path, points: np.ndarray, **fields: np.ndarray) -> Non
         _write_empty_pcd(path, fields)
         return
     cloud = o3d.t.geometry.PointCloud()
-    cloud.point.positions = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
+    # Open3D's stubs leave out the defaults of Tensor(np_array, dtype, device) and type file names as
+    # os.PathLike, though Open3D takes a str: hence the type ignores in this module.
+    positions = np.ascontiguousarray(points, dtype=np.float32)
+    cloud.point.positions = o3d.core.Tensor(positions)  # type: ignore[call-overload]
     for name, values in fields.items():
         values = np.asarray(values)
         if values.shape != (points.shape[0],):
             raise ValueError(f"field {name} must be ({points.shape[0]},), got {values.shape}")
         dtype = np.int32 if np.issubdtype(values.dtype, np.integer) else np.float32
-        cloud.point[name] = o3d.core.Tensor(np.ascontiguousarray(values.reshape(-1, 1), dtype=dtype))
+        column = np.ascontiguousarray(values.reshape(-1, 1), dtype=dtype)
+        cloud.point[name] = o3d.core.Tensor(column)  # type: ignore[call-overload]
     with atomic_path(path) as tmp:
-        ok = o3d.t.io.write_point_cloud(str(tmp), cloud, write_ascii=False, compressed=False)
+        ok = o3d.t.io.write_point_cloud(str(tmp), cloud, write_ascii=False, compressed=False)  # type: ignore[arg-type]
         if not ok:
             raise OutputError(f"{path}: Open3D could not write the point cloud")
 
@@ -59,7 +63,7 @@ def read_pcd(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     path = Path(path)
     if not path.exists():
         raise OutputError(f"{path}: point cloud file not found")
-    cloud = o3d.t.io.read_point_cloud(str(path))
+    cloud = o3d.t.io.read_point_cloud(str(path))  # type: ignore[arg-type]  # str is accepted, see write_pcd
     points = cloud.point.positions.numpy().astype(np.float64)
     extra = {}
     for name in cloud.point:

@@ -51,6 +51,16 @@ def _parse_stamp_ns(token: str) -> int:
     return int(round(float(token) * 1e9))
 
 
+_MIN_QUATERNION_NORM = 1e-9
+
+
+def _check_finite(path: Path, lineno: int, line: str, values: list[float]) -> None:
+    """:class:`TrajectoryFileError` naming the file and line when a value is NaN or infinite."""
+    bad = [v for v in values if not np.isfinite(v)]
+    if bad:
+        raise TrajectoryFileError(f"{path}:{lineno}: non-finite value ({bad[0]}) in {line.strip()!r}")
+
+
 def read_tum(path: str | Path) -> Trajectory:
     """Read a TUM trajectory; raises :class:`TrajectoryFileError` naming the file and line."""
     path = Path(path)
@@ -68,15 +78,19 @@ def read_tum(path: str | Path) -> Trajectory:
         if len(tokens) != 8:
             raise TrajectoryFileError(f"{path}:{lineno}: expected 8 TUM columns, got {len(tokens)}")
         try:
-            stamps.append(_parse_stamp_ns(tokens[0]))
-            rows.append([float(t) for t in tokens[1:]])
+            values = [float(t) for t in tokens]
         except ValueError:
             raise TrajectoryFileError(f"{path}:{lineno}: not a number in {line!r}") from None
-    values = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+        _check_finite(path, lineno, line, values)
+        if np.linalg.norm(values[4:8]) < _MIN_QUATERNION_NORM:
+            raise TrajectoryFileError(f"{path}:{lineno}: quaternion of zero length in {line!r}")
+        stamps.append(_parse_stamp_ns(tokens[0]))
+        rows.append(values[1:])
+    table = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
     poses = np.tile(np.eye(4), (len(stamps), 1, 1))
     if len(stamps):
-        poses[:, :3, :3] = Rotation.from_quat(values[:, 3:7]).as_matrix()
-        poses[:, :3, 3] = values[:, :3]
+        poses[:, :3, :3] = Rotation.from_quat(table[:, 3:7]).as_matrix()
+        poses[:, :3, 3] = table[:, :3]
     try:
         return Trajectory(np.asarray(stamps, dtype=np.int64), poses)
     except ValueError as err:
@@ -106,13 +120,19 @@ def read_kitti(path: str | Path) -> Trajectory:
         tokens = line.split()
         if len(tokens) != 12:
             raise TrajectoryFileError(f"{path}:{lineno}: expected 12 KITTI columns, got {len(tokens)}")
-        rows.append([float(t) for t in tokens])
+        values = [float(t) for t in tokens]
+        _check_finite(path, lineno, line, values)
+        rows.append(values)
     poses = np.tile(np.eye(4), (len(rows), 1, 1))
     if rows:
         poses[:, :3, :] = np.asarray(rows).reshape(-1, 3, 4)
     times_path = path.with_suffix(".times.txt")
     if times_path.exists():
-        stamps = [_parse_stamp_ns(t) for t in times_path.read_text().split()]
+        stamps = []
+        for lineno, line in enumerate(times_path.read_text().splitlines(), start=1):
+            for token in line.split():
+                _check_finite(times_path, lineno, line, [float(token)])
+                stamps.append(_parse_stamp_ns(token))
         if len(stamps) != len(rows):
             raise TrajectoryFileError(f"{times_path}: {len(stamps)} stamps for {len(rows)} poses")
     else:
@@ -134,7 +154,7 @@ def read_trajectory(path: str | Path) -> Trajectory:
     """Read a TUM (8 columns) or KITTI (12 columns, stamps from ``.times.txt``) trajectory.
 
     The format is taken from the first data row. Raises :class:`TrajectoryFileError` naming the line
-    of a malformed row.
+    of a malformed row, including a NaN or infinite value.
     """
     path = Path(path)
     try:

@@ -30,11 +30,15 @@ from __future__ import annotations
 import logging
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from lidar3d.mapping.se3 import nearest_rigid
+
+if TYPE_CHECKING:
+    import gtsam
 
 __all__ = ["GraphEdge", "PoseGraph", "format_g2o"]
 
@@ -99,7 +103,7 @@ def _check_information(information: np.ndarray) -> np.ndarray:
 # -- factors and noise models -------------------------------------------------------------------
 
 
-def _prior_factor(T_world_lidar: np.ndarray):
+def _prior_factor(T_world_lidar: np.ndarray) -> gtsam.NonlinearFactor:
     """The gauge prior on keyframe 0 at ``T_world_lidar`` (4,4), sigmas ``_PRIOR_SIGMAS``."""
     import gtsam
 
@@ -108,7 +112,9 @@ def _prior_factor(T_world_lidar: np.ndarray):
     return gtsam.PriorFactorPose3(key, gtsam.Pose3(T_world_lidar), noise)
 
 
-def _odometry_factor(index: int, T_prev_curr: np.ndarray, sigmas: np.ndarray) -> tuple[object, GraphEdge]:
+def _odometry_factor(
+    index: int, T_prev_curr: np.ndarray, sigmas: np.ndarray
+) -> tuple[gtsam.NonlinearFactor, GraphEdge]:
     """``BetweenFactor(X(index-1), X(index), T_prev_curr)`` with diagonal noise ``sigmas`` (GTSAM
     order), and its edge for export."""
     import gtsam
@@ -121,7 +127,7 @@ def _odometry_factor(index: int, T_prev_curr: np.ndarray, sigmas: np.ndarray) ->
 
 def _loop_factor(
     query: int, match: int, T_match_query: np.ndarray, information: np.ndarray, huber_k: float
-) -> tuple[object, GraphEdge]:
+) -> tuple[gtsam.NonlinearFactor, GraphEdge]:
     """``BetweenFactor(X(match), X(query), T_match_query)`` with Gaussian noise of ``information``
     (6,6, GTSAM order) behind a Huber kernel of threshold ``huber_k`` sigmas, and its edge."""
     import gtsam
@@ -137,7 +143,7 @@ def _loop_factor(
 # -- iSAM2 plumbing -----------------------------------------------------------------------------
 
 
-def _factor_graph(factors: Iterable[object] = ()):
+def _factor_graph(factors: Iterable[gtsam.NonlinearFactor] = ()):
     """A ``NonlinearFactorGraph`` holding ``factors`` in order."""
     import gtsam
 
@@ -175,12 +181,12 @@ class _Isam2:
         params.relinearizeSkip = self.relinearize_skip
         return gtsam.ISAM2(params)
 
-    def accept(self, factors: Iterable[object]) -> None:
+    def accept(self, factors: Iterable[gtsam.NonlinearFactor]) -> None:
         """Record ``factors`` as held by the solver (after a successful update)."""
         for factor in factors:
             self.accepted.add(factor)
 
-    def rebuild(self, factors: list[object], poses: dict[int, np.ndarray]) -> None:
+    def rebuild(self, factors: list[gtsam.NonlinearFactor], poses: dict[int, np.ndarray]) -> None:
         """A fresh iSAM2 holding the accepted factors plus ``factors`` (not yet accepted), with
         ``poses`` as the values."""
         graph = _factor_graph([self.accepted.at(i) for i in range(self.accepted.size())] + factors)
@@ -239,7 +245,7 @@ class PoseGraph:
         self._n = 0
         self._latest: dict[int, np.ndarray] = {}  # last estimate of recently added keys
         self._solver = _Isam2(float(relinearize_threshold), int(relinearize_skip))
-        self._pending_factors: list[tuple[object, GraphEdge | None]] = []
+        self._pending_factors: list[tuple[gtsam.NonlinearFactor, GraphEdge | None]] = []
         self._pending_values: dict[int, np.ndarray] = {}
         self._initial: dict[int, np.ndarray] = {}
 

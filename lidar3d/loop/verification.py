@@ -193,9 +193,15 @@ def _pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
 
 
 def _rejected(
-    verdict: Verdict, reason: str, T: np.ndarray, n_source: int, n_target: int, **metrics
+    verdict: Verdict, reason: str, T: np.ndarray, n_source: int, n_target: int, /, **metrics: float
 ) -> LoopVerification:
-    values = dict(fitness=np.nan, inlier_rmse_m=np.nan, overlap=np.nan, correction_m=np.nan, correction_deg=np.nan)
+    values = {
+        "fitness": np.nan,
+        "inlier_rmse_m": np.nan,
+        "overlap": np.nan,
+        "correction_m": np.nan,
+        "correction_deg": np.nan,
+    }
     values.update(metrics)
     return LoopVerification(
         verdict=verdict,
@@ -258,11 +264,11 @@ def verify_loop(
     method = config.icp_method
     if method == "point_to_plane":
         target_cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=20))
-        estimation = registration.TransformationEstimationPointToPlane()
+        point_to_plane = registration.TransformationEstimationPointToPlane()
 
         def run(distance: float, T: np.ndarray, iterations: int):
             criteria = registration.ICPConvergenceCriteria(1e-7, 1e-7, iterations)
-            return registration.registration_icp(source_cloud, target_cloud, distance, T, estimation, criteria)
+            return registration.registration_icp(source_cloud, target_cloud, distance, T, point_to_plane, criteria)
 
     elif method == "gicp":
         # Open3D's GICP turns normals into plane-like covariances R diag(eps, 1, 1) Rᵀ, estimating
@@ -270,12 +276,12 @@ def verify_loop(
         # none. Estimated once here with the same search, the five calls below repeat no search.
         for cloud in (source_cloud, target_cloud):
             cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
-        estimation = registration.TransformationEstimationForGeneralizedICP()
+        generalized = registration.TransformationEstimationForGeneralizedICP()
 
         def run(distance: float, T: np.ndarray, iterations: int):
             criteria = registration.ICPConvergenceCriteria(1e-7, 1e-7, iterations)
             return registration.registration_generalized_icp(
-                source_cloud, target_cloud, distance, T, estimation, criteria
+                source_cloud, target_cloud, distance, T, generalized, criteria
             )
 
     else:
@@ -295,6 +301,7 @@ def verify_loop(
             )
         T = nearest_rigid(np.array(result.transformation))
     final_distance = float(config.icp_max_correspondence_m[-1])
+    assert result is not None  # the schedule is not empty (indexed just above)
     check = run(final_distance, T, config.icp_max_iterations)
     moved_m, moved_deg = _pose_change(T, np.array(check.transformation))
     correction_m, correction_deg = _pose_change(T_guess, T)
@@ -302,9 +309,13 @@ def verify_loop(
     rmse = float(result.inlier_rmse)
     aligned = transform_points(T, source)
     overlap = voxel_overlap(aligned, target, config.overlap_voxel_m)
-    metrics = dict(
-        fitness=fitness, inlier_rmse_m=rmse, overlap=overlap, correction_m=correction_m, correction_deg=correction_deg
-    )
+    metrics = {
+        "fitness": fitness,
+        "inlier_rmse_m": rmse,
+        "overlap": overlap,
+        "correction_m": correction_m,
+        "correction_deg": correction_deg,
+    }
     limit_m = config.max_correction_m if max_correction_m is None else max_correction_m
     if moved_m > _CONVERGED_M or moved_deg > _CONVERGED_DEG:
         return _rejected(

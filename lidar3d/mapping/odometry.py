@@ -12,6 +12,7 @@ previous stamp to the lidar at the current stamp. Correspondences use LOAM's rin
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -94,7 +95,8 @@ class ScanToScanOdometry:
         planes: RingIndexedCloud,
     ) -> OdometryStep:
         radius = self.search_radius_m
-        common = dict(
+        solve = functools.partial(
+            solve_pose,
             max_iterations=self.max_iterations,
             rematch_every=self.rematch_every,
             min_rows=self.min_rows,
@@ -102,15 +104,12 @@ class ScanToScanOdometry:
             converge_rotation_deg=0.1,
             converge_translation_m=0.001,
         )
-        planar = solve_pose(
-            T_guess, features.flat.points, lambda q: planes.match_planes(q, radius), free_axes=PLANAR_AXES, **common
-        )
-        edge = solve_pose(
+        planar = solve(T_guess, features.flat.points, lambda q: planes.match_planes(q, radius), free_axes=PLANAR_AXES)
+        edge = solve(
             planar.T_target_source,
             features.sharp.points,
             lambda q: edges.match_lines(q, radius),
             free_axes=EDGE_AXES,
-            **common,
         )
         used_model = planar.iterations == 0 and edge.iterations == 0
         edge_observed = edge.iterations > 0 and edge.degenerate_axes == 0

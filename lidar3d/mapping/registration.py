@@ -63,13 +63,13 @@ class MatchRows:
 
     @staticmethod
     def concatenate(parts: list[MatchRows], index_shifts: list[int]) -> MatchRows:
-        parts = [(p, s) for p, s in zip(parts, index_shifts) if len(p)]
-        if not parts:
+        shifted = [(p, s) for p, s in zip(parts, index_shifts) if len(p)]
+        if not shifted:
             return MatchRows.empty()
         return MatchRows(
-            np.concatenate([p.source_index + s for p, s in parts]),
-            np.concatenate([p.normal for p, _ in parts]),
-            np.concatenate([p.offset for p, _ in parts]),
+            np.concatenate([p.source_index + s for p, s in shifted]),
+            np.concatenate([p.normal for p, _ in shifted]),
+            np.concatenate([p.offset for p, _ in shifted]),
         )
 
 

@@ -5,17 +5,29 @@ Pure metric code (``association``, ``alignment``, ``ate``, ``rpe``, ``evaluation
 here writes files: the report (JSON, CSV, plots, text table) is :mod:`lidar3d.export.span_report`.
 """
 
-from lidar3d.metrics.alignment import AlignmentMode, align_trajectories, umeyama_se3, yaw_alignment
+from lidar3d.metrics.alignment import (
+    Alignment,
+    AlignmentMode,
+    align_trajectories,
+    se3_conditioning,
+    umeyama_se3,
+    yaw_alignment,
+)
 from lidar3d.metrics.association import Association, associate, interpolate_reference
 from lidar3d.metrics.ate import AbsoluteErrors, AteStatistics, absolute_errors
 from lidar3d.metrics.errors import EvaluationError
 from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
 from lidar3d.metrics.rpe import DistanceRpe, KittiRpe, distance_rpe, kitti_rpe
-from lidar3d.metrics.span_eval import SpanEvaluation, evaluate_against_span, evaluate_span_files
+from lidar3d.metrics.span_eval import (
+    SpanEvaluation,
+    evaluate_against_span,
+    evaluate_span_files,
+)
 from lidar3d.metrics.statistics import ErrorStatistics
 
 __all__ = [
     "AbsoluteErrors",
+    "Alignment",
     "AlignmentMode",
     "Association",
     "AteStatistics",
@@ -34,6 +46,7 @@ __all__ = [
     "evaluate_trajectory",
     "interpolate_reference",
     "kitti_rpe",
+    "se3_conditioning",
     "umeyama_se3",
     "yaw_alignment",
 ]

@@ -42,6 +42,9 @@ class SpanEvaluation:
         T_imu_lidar: (4, 4) extrinsic applied to the reference.
         config: the resolved ``gnss`` settings.
         trajectory_source, span_source: file names where known, for the report.
+        warnings: one line each for the report: log messages skipped for non-finite or
+            out-of-range values, then the evaluation's (ill-conditioned alignment). Each was logged
+            once where it arose (the reader, :func:`~lidar3d.metrics.evaluation.evaluate_trajectory`).
     """
 
     evaluation: Evaluation
@@ -51,6 +54,10 @@ class SpanEvaluation:
     config: GnssConfig
     trajectory_source: str = ""
     span_source: str = ""
+    warnings: tuple[str, ...] = ()
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "warnings", tuple(self.warnings))
 
 
 def _log_of(span_log: str | Path | SpanLog) -> SpanLog:
@@ -103,6 +110,13 @@ def evaluate_against_span(
         rpe_step_s=config.rpe_step_s,
         rpe_distances_m=config.rpe_distances_m,
     )
+    warnings = list(evaluation.warnings)
+    if log.stats.out_of_range:
+        warnings.insert(
+            0,
+            f"{log.source or 'GNSS log'}: {log.stats.out_of_range} message(s) with non-finite or out-of-range values "
+            "(position, velocity, attitude or GPS time) skipped",
+        )
     result = SpanEvaluation(
         evaluation=evaluation,
         reference=reference,
@@ -111,6 +125,7 @@ def evaluate_against_span(
         config=config,
         trajectory_source=trajectory_source,
         span_source=log.source,
+        warnings=tuple(warnings),
     )
     logger.debug(
         "ATE %s: rmse %.3f m over %d poses", mode.value, evaluation.ate.translation_3d_m.rmse, evaluation.n_associated

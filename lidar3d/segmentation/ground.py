@@ -67,7 +67,8 @@ def ground_row_count(config: SegmentationConfig, row_elevation_rad: np.ndarray) 
 def _check(config: SegmentationConfig) -> None:
     if not 0.0 < config.ground_angle_threshold_deg < 90.0:
         raise ConfigError(
-            f"config segmentation.ground_angle_threshold_deg: must be in (0, 90), got {config.ground_angle_threshold_deg}"
+            "config segmentation.ground_angle_threshold_deg: must be in (0, 90), "
+            f"got {config.ground_angle_threshold_deg}"
         )
     if config.ground_continuity and not 0.0 < config.ground_max_angle_change_deg < 90.0:
         raise ConfigError(

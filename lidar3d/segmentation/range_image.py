@@ -65,7 +65,7 @@ class RangeImage:
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, columns)."""
-        return self.range_m.shape  # type: ignore[return-value]
+        return self.range_m.shape
 
     @property
     def occupied(self) -> np.ndarray:
@@ -135,9 +135,9 @@ def project_scan(scan: Scan, sensor_config: SensorConfig, config: SegmentationCo
     columns += n_columns // 2
     columns %= n_columns
     cell = rows[index] * n_columns + columns
-    point_index = np.full(n_rows * n_columns, -1, dtype=np.int64)
-    point_index[cell] = index  # repeated cells: the last point written stays, as in LeGO-LOAM
-    point_index = point_index.reshape(n_rows, n_columns)
+    flat_index = np.full(n_rows * n_columns, -1, dtype=np.int64)
+    flat_index[cell] = index  # repeated cells: the last point written stays, as in LeGO-LOAM
+    point_index = flat_index.reshape(n_rows, n_columns)
     occupied = point_index >= 0
     image_points = np.full((n_rows, n_columns, 3), np.nan)
     image_points[occupied] = points[point_index[occupied]]

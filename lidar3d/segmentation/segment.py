@@ -74,7 +74,7 @@ class Segmentation:
                 raise ValueError(f"Segmentation.{name} must be {shape}, got {array.shape}")
             object.__setattr__(self, name, readonly(array))
         n = np.asarray(self.scan_index).shape[0]
-        for name, dtype, tail in (
+        for name, point_dtype, tail in (
             ("scan_index", np.int64, ()),
             ("points", np.float64, (3,)),
             ("row", np.int64, ()),
@@ -82,7 +82,7 @@ class Segmentation:
             ("range_m", np.float64, ()),
             ("is_ground", bool, ()),
         ):
-            array = np.asarray(getattr(self, name), dtype=dtype)
+            array = np.asarray(getattr(self, name), dtype=point_dtype)
             if array.shape != (n,) + tail:
                 raise ValueError(f"Segmentation.{name} must be {(n,) + tail}, got {array.shape}")
             object.__setattr__(self, name, readonly(array))
@@ -95,7 +95,8 @@ class Segmentation:
         outlier_row = np.asarray(self.outlier_row, dtype=np.int64)
         if outliers.ndim != 1 or outlier_row.shape != outliers.shape:
             raise ValueError(
-                f"Segmentation.outlier_scan_index and outlier_row must be (K,), got {outliers.shape}, {outlier_row.shape}"
+                "Segmentation.outlier_scan_index and outlier_row must be (K,), "
+                f"got {outliers.shape}, {outlier_row.shape}"
             )
         object.__setattr__(self, "outlier_scan_index", readonly(outliers))
         object.__setattr__(self, "outlier_row", readonly(outlier_row))

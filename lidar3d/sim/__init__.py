@@ -4,10 +4,12 @@ Modules, one concept each:
 
 * :mod:`~lidar3d.sim.shapes`, :mod:`~lidar3d.sim.terrain`, :mod:`~lidar3d.sim.world`: the world as
   one triangle mesh with an object id per triangle;
-* :mod:`~lidar3d.sim.trajectory`: vehicle motion along a street route, and revisit detection;
+* :mod:`~lidar3d.sim.trajectory`: vehicle motion along a street route (speed profiles, stops,
+  suspension vibration), and revisit detection;
 * :mod:`~lidar3d.sim.scenarios`: the named scenarios;
 * :mod:`~lidar3d.sim.rig`: where the lidar and the antenna sit relative to the IMU;
-* :mod:`~lidar3d.sim.lidar`: the ray-cast sensor (per-column poses, noise, dropouts, intensity);
+* :mod:`~lidar3d.sim.lidar`: the ray-cast sensor (per-column poses, noise, dropouts, intensity,
+  calibration errors, lost packets, stamp conventions);
 * :mod:`~lidar3d.sim.span`: the NovAtel SPAN ASCII log;
 * :mod:`~lidar3d.sim.simulation`: everything put together, scans on demand;
 * :mod:`~lidar3d.sim.output`: the output folder and :func:`simulate`.
@@ -15,7 +17,7 @@ Modules, one concept each:
 Open3D is imported only when the first scan is ray cast.
 """
 
-from lidar3d.sim.lidar import LidarParams, SimulatedScan
+from lidar3d.sim.lidar import LidarParams, SimulatedScan, StampMode
 from lidar3d.sim.output import BagFormat, SimulationOutputs, simulate, write_simulation
 from lidar3d.sim.rig import RigParams
 from lidar3d.sim.scenarios import DEFAULT_SCENARIO, SCENARIOS, Scenario, get_scenario
@@ -42,6 +44,7 @@ __all__ = [
     "Simulation",
     "SimulationOutputs",
     "SpanParams",
+    "StampMode",
     "StreetLayout",
     "TerrainParams",
     "World",

@@ -12,12 +12,21 @@ incidence, and an intensity from the surface's reflectivity and the incidence an
 on the road are bright, asphalt dark, verges brighter). Rays that hit nothing are absent. The
 caller gets per point the object it hit (0 = ground) and that object's class.
 
+Imperfections (all off by default): a per-laser elevation error and range bias drawn once from the
+seed; the rays are cast along the TRUE (perturbed) beams while the points are computed from the
+measured range with the NOMINAL elevation table, as a driver with a stock calibration does. Dropped
+packets: with a probability per sweep, a wedge of consecutive columns has no points. The header
+stamp (sweep start or sweep end, with jitter) is made by :class:`~lidar3d.sim.simulation.Simulation`;
+per-point times are relative to the true sweep start, or to the true firing time of the sweep's last
+column in :attr:`StampMode.SWEEP_END`.
+
 Open3D appears in this module only.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 import numpy as np
 
@@ -26,7 +35,9 @@ from lidar3d.records import Scan
 from lidar3d.sensors import SensorModel
 from lidar3d.sim.world import ObjectClass, World
 
-__all__ = ["LidarParams", "LidarSimulator", "SimulatedScan"]
+__all__ = ["LidarParams", "LidarSimulator", "SimulatedScan", "StampMode"]
+
+_CALIBRATION_STREAM = 0xCA1B
 
 # Reflectivity ranges (Velodyne calibrated units, 0-100 diffuse) per object class.
 _REFLECTIVITY = {
@@ -38,6 +49,19 @@ _REFLECTIVITY = {
     ObjectClass.CAR: (5.0, 100.0),
 }
 _ASPHALT, _VERGE, _MARKING = 10.0, 35.0, 110.0
+
+
+class StampMode(str, Enum):
+    """What a sweep's header stamp marks.
+
+    ``sweep_start``: the firing time of the first column; per-point times 0..T after it (the
+    velodyne_pointcloud layout lidar3d expects). ``sweep_end``: the firing time of the last column
+    (the last point's time, as the stock ROS velodyne driver stamps a sweep with its last packet);
+    per-point times -T..0 relative to it.
+    """
+
+    SWEEP_START = "sweep_start"
+    SWEEP_END = "sweep_end"
 
 
 @dataclass(frozen=True, slots=True)
@@ -52,6 +76,15 @@ class LidarParams:
         max_incidence_deg: no return when the beam meets a surface more obliquely than this.
         start_azimuth_deg: ``atan2(y, x)`` of the first column of a sweep (180: pointing backwards).
         intensity_noise_sigma: standard deviation of the intensity noise (sensor units).
+        elevation_error_sigma_deg: standard deviation of the per-laser elevation error (the true
+            beam is the nominal one tilted by the error; points are computed with the nominal table).
+        range_bias_sigma_m: standard deviation of the per-laser range bias (added to every range).
+        stamp_jitter_s: header stamps are off by a uniform error in [-jitter, +jitter] (a jittery
+            driver clock); point times stay relative to the true sweep start (or end), so they are
+            off by the same error relative to the stamp.
+        dropped_wedge_probability: chance per sweep that one packet's wedge of columns is lost.
+        dropped_wedge_deg: azimuth width of a lost wedge (4.8: one VLP-16 packet at 10 Hz).
+        stamp: what the header stamp marks (:class:`StampMode`).
     """
 
     range_noise_sigma_m: float = 0.02
@@ -61,6 +94,12 @@ class LidarParams:
     max_incidence_deg: float = 88.0
     start_azimuth_deg: float = 180.0
     intensity_noise_sigma: float = 1.5
+    elevation_error_sigma_deg: float = 0.0
+    range_bias_sigma_m: float = 0.0
+    stamp_jitter_s: float = 0.0
+    dropped_wedge_probability: float = 0.0
+    dropped_wedge_deg: float = 4.8
+    stamp: StampMode = StampMode.SWEEP_START
 
     def __post_init__(self) -> None:
         if self.range_noise_sigma_m < 0.0 or not 0.0 <= self.dropout_probability < 1.0:
@@ -69,6 +108,13 @@ class LidarParams:
             raise SimulationError("lidar min_range_m and max_range_m must be >= 0")
         if not 0.0 < self.max_incidence_deg <= 90.0:
             raise SimulationError("lidar max_incidence_deg must be in (0, 90]")
+        if min(self.elevation_error_sigma_deg, self.range_bias_sigma_m) < 0.0 or not 0.0 <= self.stamp_jitter_s < 0.01:
+            raise SimulationError("lidar calibration sigmas must be >= 0 and stamp_jitter_s in [0, 0.01) s")
+        if not 0.0 <= self.dropped_wedge_probability <= 1.0 or not 0.0 < self.dropped_wedge_deg < 360.0:
+            raise SimulationError("lidar dropped_wedge_probability must be in [0, 1] and dropped_wedge_deg in (0, 360)")
+        if self.stamp not in [mode.value for mode in StampMode]:
+            known = ", ".join(mode.value for mode in StampMode)
+            raise SimulationError(f"lidar stamp must be one of: {known}; got {self.stamp!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -82,7 +128,7 @@ class SimulatedScan:
             (see :class:`~lidar3d.sim.world.World` for the objects).
         object_class: (N,) uint8 :class:`~lidar3d.sim.world.ObjectClass` of that object.
         column: (N,) uint16 firing column (0 = first of the sweep).
-        T_world_lidar: (4, 4) true lidar pose at the scan stamp (the sweep start).
+        T_world_lidar: (4, 4) true lidar pose at the scan's header stamp.
     """
 
     index: int
@@ -115,7 +161,16 @@ class LidarSimulator:
         world: the scene.
         sensor: beam elevations, columns and rotation rate.
         params: measurement model.
-        seed: seeds the per-object reflectivities.
+        seed: seeds the per-object reflectivities and the per-laser calibration errors.
+
+    Attributes:
+        directions_lidar: (n_columns, n_rings, 3) nominal unit beams (the points are computed with these).
+        true_directions_lidar: (n_columns, n_rings, 3) the beams the rays are cast along.
+        elevation_error_rad: (n_rings,) true minus nominal elevation per laser.
+        range_bias_m: (n_rings,) range bias per laser.
+        column_time_s: (n_columns,) firing time of each column after the sweep start.
+        time_reference_s: instant the per-point times are relative to, after the sweep start
+            (0, or the last column's firing time in sweep-end mode).
     """
 
     def __init__(self, world: World, sensor: SensorModel, params: LidarParams, seed: int) -> None:
@@ -127,9 +182,10 @@ class LidarSimulator:
         self.max_range_m = params.max_range_m or sensor.max_range_m
         self._o3d = o3d
         self._scene = o3d.t.geometry.RaycastingScene()
+        # Open3D's stubs leave out the defaults of Tensor(np_array, dtype, device): hence the type ignores.
         self._scene.add_triangles(
-            o3d.core.Tensor(np.ascontiguousarray(world.vertices_m, dtype=np.float32)),
-            o3d.core.Tensor(np.ascontiguousarray(world.triangles, dtype=np.uint32)),
+            o3d.core.Tensor(np.ascontiguousarray(world.vertices_m, dtype=np.float32)),  # type: ignore[call-overload]
+            o3d.core.Tensor(np.ascontiguousarray(world.triangles, dtype=np.uint32)),  # type: ignore[call-overload]
         )
         rng = np.random.default_rng([int(seed), 0x4EF1])
         reflectivity = np.full(len(world.object_class), _VERGE)
@@ -139,40 +195,41 @@ class LidarSimulator:
         self._reflectivity = reflectivity
         n_columns, n_rings = sensor.n_columns, sensor.n_rings
         azimuth = np.deg2rad(params.start_azimuth_deg) - 2.0 * np.pi * np.arange(n_columns) / n_columns
-        elevation = sensor.elevation_rad
-        cos_el = np.cos(elevation)
-        # (n_columns, n_rings, 3) unit beam directions in the lidar frame, column-major firing order.
-        self.directions_lidar = np.stack(
-            [
-                np.cos(azimuth)[:, None] * cos_el[None, :],
-                np.sin(azimuth)[:, None] * cos_el[None, :],
-                np.broadcast_to(np.sin(elevation)[None, :], (n_columns, n_rings)),
-            ],
-            axis=-1,
-        )
+        calibration = np.random.default_rng([int(seed), _CALIBRATION_STREAM])
+        self.elevation_error_rad = calibration.normal(0.0, np.deg2rad(params.elevation_error_sigma_deg), n_rings)
+        self.range_bias_m = calibration.normal(0.0, params.range_bias_sigma_m, n_rings)
+        self.directions_lidar = _beam_directions(azimuth, sensor.elevation_rad)
+        self.true_directions_lidar = _beam_directions(azimuth, sensor.elevation_rad + self.elevation_error_rad)
         self.column_time_s = np.arange(n_columns) * (sensor.sweep_period_s / n_columns)
+        self.time_reference_s = float(self.column_time_s[-1]) if params.stamp == StampMode.SWEEP_END else 0.0
 
     def cast(
-        self, index: int, stamp_ns: int, T_world_lidar_columns: np.ndarray, rng: np.random.Generator
+        self,
+        index: int,
+        stamp_ns: int,
+        T_world_lidar_columns: np.ndarray,
+        rng: np.random.Generator,
+        T_world_lidar_stamp: np.ndarray,
     ) -> SimulatedScan:
         """Simulate one sweep.
 
         Args:
             index: scan index (kept in the result).
-            stamp_ns: sweep start.
+            stamp_ns: the header stamp to write.
             T_world_lidar_columns: (n_columns, 4, 4) lidar pose at each column's firing time.
             rng: source of all randomness of this sweep.
+            T_world_lidar_stamp: (4, 4) true lidar pose at ``stamp_ns`` (kept in the result).
         """
         n_columns, n_rings = self.sensor.n_columns, self.sensor.n_rings
         if T_world_lidar_columns.shape != (n_columns, 4, 4):
             raise SimulationError(f"need ({n_columns}, 4, 4) column poses, got {T_world_lidar_columns.shape}")
         rotation = T_world_lidar_columns[:, :3, :3]
         origin = T_world_lidar_columns[:, :3, 3]
-        directions_world = self.directions_lidar @ rotation.transpose(0, 2, 1)  # (c, r, 3): R_c d_cr
+        directions_world = self.true_directions_lidar @ rotation.transpose(0, 2, 1)  # (c, r, 3): R_c d_cr
         rays = np.empty((n_columns, n_rings, 6), dtype=np.float32)
         rays[:, :, :3] = origin[:, None, :]
         rays[:, :, 3:] = directions_world
-        result = self._scene.cast_rays(self._o3d.core.Tensor(rays.reshape(-1, 6)))
+        result = self._scene.cast_rays(self._o3d.core.Tensor(rays.reshape(-1, 6)))  # type: ignore[call-overload]
         t_hit = result["t_hit"].numpy()
         hit = np.flatnonzero(np.isfinite(t_hit))
         triangle = result["primitive_ids"].numpy()[hit]
@@ -182,6 +239,7 @@ class LidarSimulator:
 
         n = len(hit)
         range_m = t_hit[hit].astype(np.float64) + rng.normal(0.0, self.params.range_noise_sigma_m, n)
+        range_m += self.range_bias_m[hit % n_rings]
         keep = (
             (range_m >= self.params.min_range_m)
             & (range_m <= self.max_range_m)
@@ -199,6 +257,10 @@ class LidarSimulator:
         intensity += rng.normal(0.0, self.params.intensity_noise_sigma, n)
         intensity = np.clip(np.rint(intensity), 0.0, 255.0)
 
+        if self.params.dropped_wedge_probability > 0.0 and rng.random() < self.params.dropped_wedge_probability:
+            width = max(1, int(round(self.params.dropped_wedge_deg / 360.0 * n_columns)))
+            lost = np.mod(rng.integers(n_columns) + np.arange(width), n_columns)
+            keep &= ~np.isin(hit // n_rings, lost)
         keep_idx = np.flatnonzero(keep)
         flat = hit[keep_idx]
         column = flat // n_rings
@@ -209,7 +271,7 @@ class LidarSimulator:
             points=points,
             intensity=intensity[keep_idx],
             ring=ring,
-            time_offset_s=self.column_time_s[column],
+            time_offset_s=self.column_time_s[column] - self.time_reference_s,
         )
         kept_ids = object_id[keep_idx].astype(np.int32)
         return SimulatedScan(
@@ -218,7 +280,7 @@ class LidarSimulator:
             object_id=kept_ids,
             object_class=self.world.object_class[kept_ids],
             column=column.astype(np.uint16),
-            T_world_lidar=T_world_lidar_columns[0].copy(),
+            T_world_lidar=np.array(T_world_lidar_stamp, dtype=float),
         )
 
     def _ground_reflectivity(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -232,3 +294,16 @@ class LidarSimulator:
             (dy < 0.08) & (dx > half) & (np.mod(x, 9.0) < 3.0)
         )
         return np.where(marking, _MARKING, np.where(on_road, _ASPHALT, _VERGE))
+
+
+def _beam_directions(azimuth_rad: np.ndarray, elevation_rad: np.ndarray) -> np.ndarray:
+    """(n_columns, n_rings, 3) unit beam directions in the lidar frame, column-major firing order."""
+    cos_el = np.cos(elevation_rad)
+    return np.stack(
+        [
+            np.cos(azimuth_rad)[:, None] * cos_el[None, :],
+            np.sin(azimuth_rad)[:, None] * cos_el[None, :],
+            np.broadcast_to(np.sin(elevation_rad)[None, :], (len(azimuth_rad), len(elevation_rad))),
+        ],
+        axis=-1,
+    )

@@ -5,11 +5,13 @@ complete folder):
 
 ===========================  ==========================================================================
 ``scans.bag``                ROS1 bag, ``/velodyne_points`` (sensor_msgs/PointCloud2, velodyne layout,
-                             frame ``velodyne``, stamp = sweep start); ``scans/`` for ROS2 (a bag folder)
+                             frame ``velodyne``, stamp = sweep start or end, see ``metadata.json``
+                             ``stamps``); ``scans/`` for ROS2 (a bag folder)
 ``ground_truth_tum.txt``     true lidar pose at every scan stamp, TUM (world = local ENU at the origin)
 ``novatel_span.log``         NovAtel SPAN-CPT ASCII: #INSPVAXA 20 Hz, #BESTPOSA 1 Hz, CRC-32, CR LF
 ``extrinsics.toml``          ``T_imu_lidar`` (lidar pose in the SPAN vehicle frame)
-``metadata.json``            scenario, seed, sensor, counts, length, duration, origin, revisits, parameters
+``metadata.json``            scenario, seed, sensor, counts, length, duration, stamps, stops, origin,
+                             revisits, parameters
 ===========================  ==========================================================================
 """
 
@@ -30,7 +32,7 @@ from lidar3d.io.atomic import write_bytes_atomic, write_text_atomic
 from lidar3d.io.bag_writer import write_scan_bag
 from lidar3d.io.trajectory_io import write_tum
 from lidar3d.sensors import SensorModel
-from lidar3d.sim.lidar import LidarParams
+from lidar3d.sim.lidar import LidarParams, StampMode
 from lidar3d.sim.rig import RigParams
 from lidar3d.sim.scenarios import DEFAULT_SCENARIO, Scenario
 from lidar3d.sim.simulation import Simulation
@@ -97,8 +99,7 @@ def _jsonable(value):
 
 def _metadata(sim: Simulation, bag_format: BagFormat, n_points: int) -> dict:
     gt = sim.ground_truth
-    t_s = (gt.stamps_ns - sim.start_time_ns) * 1e-9
-    speed = np.linalg.norm(sim.motion.velocity_at(t_s), axis=1)
+    speed = np.linalg.norm(sim.motion.velocity_at(sim.route_seconds(gt.stamps_ns)), axis=1)
     events = group_revisits(sim.revisits())
     origin = sim.span_params.origin
     degraded = sim.degraded_gnss_span_ns()
@@ -116,6 +117,8 @@ def _metadata(sim: Simulation, bag_format: BagFormat, n_points: int) -> dict:
         "duration_s": sim.duration_s,
         "path_length_m": gt.path_length_m,
         "speed_mps": {"min": float(speed.min()), "mean": float(speed.mean()), "max": float(speed.max())},
+        "stamps": _stamp_metadata(sim),
+        "stops": [{"start_ns": int(start_ns), "end_ns": int(end_ns)} for start_ns, end_ns in sim.stop_spans_ns()],
         "frames": {
             "world": "local ENU (x east, y north, z up) at the geographic origin",
             "lidar": "REP-105 (x forward, y left, z up), frame_id velodyne",
@@ -167,6 +170,22 @@ def _metadata(sim: Simulation, bag_format: BagFormat, n_points: int) -> dict:
             "rig": _jsonable(sim.rig),
             "start_time_ns": sim.start_time_ns,
         },
+    }
+
+
+def _stamp_metadata(sim: Simulation) -> dict:
+    mode = StampMode(sim.lidar_params.stamp)
+    marks = {
+        StampMode.SWEEP_START: "firing time of the sweep's first column; point times 0..T after the sweep start",
+        StampMode.SWEEP_END: "firing time of the sweep's last column; point times -T..0 relative to it",
+    }[mode]
+    return {
+        "mode": mode.value,
+        "header_stamp": marks,
+        "jitter_s": sim.lidar_params.stamp_jitter_s,
+        "jitter": "stamp = true instant + uniform error in [-jitter, +jitter]; point times are relative to "
+        "the true instant, not to the stamp",
+        "ground_truth": "true lidar pose at each header stamp",
     }
 
 

@@ -1,13 +1,19 @@
 """Named simulation scenarios: a street layout, a route through it, and how the vehicle drives it.
 
-=========  ======================================================================================
-name       what it exercises
-=========  ======================================================================================
-loop       ~420 m loop around one block on gently rolling ground, back past the start (default)
-long       ~1.4 km: three revisits of earlier streets (two against the first direction) and a 240 m feature-poor stretch
-hilly      ~500 m loop over hills with slopes up to 8 degrees (roll and pitch from the slope)
-fast       ~700 m at up to 10 m/s with sharp 90-degree corners (strong motion distortion)
-=========  ======================================================================================
+==========  =====================================================================================
+name        what it exercises
+==========  =====================================================================================
+loop        ~420 m loop around one block on gently rolling ground, back past the start (default)
+long        ~1.4 km: three revisits (two against the first direction) and a 240 m feature-poor stretch
+hilly       ~500 m loop over hills with slopes up to 8 degrees (roll and pitch from the slope)
+fast        ~700 m at up to 10 m/s with sharp 90-degree corners (strong motion distortion)
+stops       ~400 m town drive at 2-9 m/s, real braking, three 3-6 s stops, vibration, calibration error, jitter
+blind_turn  ~520 m: 240 m of open land at a varying 4.5-8 m/s ending in a 90-degree turn on open land (~30 deg/s)
+==========  =====================================================================================
+
+The first four drive at the cruise speed on straights, on a rigid body, with a perfect sensor; the
+last two use the vehicle dynamics and sensor imperfections of
+:class:`~lidar3d.sim.trajectory.RouteParams` and :class:`~lidar3d.sim.lidar.LidarParams`.
 
 Route nodes lie on the street grid (``StreetLayout``); consecutive nodes share a street. The vehicle
 drives on the right, ``lane_offset_m`` from the centre line, so a street driven in the opposite
@@ -19,6 +25,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lidar3d.errors import SimulationError
+from lidar3d.sim.lidar import LidarParams
 from lidar3d.sim.terrain import TerrainParams
 from lidar3d.sim.trajectory import RouteParams
 from lidar3d.sim.world import StreetLayout, WorldParams
@@ -37,6 +44,7 @@ class Scenario:
         route_m: route nodes (x, y) in the world frame, on the grid.
         route: driving parameters.
         world: object parameters (including the terrain).
+        lidar: measurement model (a :class:`Simulation` given its own ``lidar`` uses that instead).
     """
 
     name: str
@@ -45,6 +53,7 @@ class Scenario:
     route_m: tuple[tuple[float, float], ...]
     route: RouteParams = field(default_factory=RouteParams)
     world: WorldParams = field(default_factory=WorldParams)
+    lidar: LidarParams = field(default_factory=LidarParams)
 
     def __post_init__(self) -> None:
         xs, ys = set(self.layout.street_x_m), set(self.layout.street_y_m)
@@ -120,6 +129,46 @@ SCENARIOS: dict[str, Scenario] = {
                 max_lateral_accel_mps2=4.5,
                 max_accel_mps2=2.5,
                 max_decel_mps2=3.5,
+            ),
+        ),
+        Scenario(
+            name="stops",
+            description="~400 m town drive at 2-9 m/s with three stops of 3-6 s, vibration and calibration error",
+            layout=StreetLayout(street_x_m=(0.0, 70.0, 140.0), street_y_m=(0.0, 60.0)),
+            route_m=((20.0, 0.0), (140.0, 0.0), (140.0, 60.0), (0.0, 60.0), (0.0, 0.0), (40.0, 0.0)),
+            route=RouteParams(
+                cruise_speed_mps=9.0,
+                random_speed_min_mps=3.0,
+                speed_stretch_m=(40.0, 90.0),
+                max_accel_mps2=1.5,
+                max_decel_mps2=2.5,
+                # Stop lines before the crossing at x = 70 m (eastbound, then westbound) and a
+                # pedestrian crossing halfway down the western street.
+                stops=((43.0, 4.0), (239.0, 6.0), (344.0, 3.0)),
+                vibration_deg=0.1,
+                vibration_heave_m=0.0005,
+            ),
+            lidar=LidarParams(elevation_error_sigma_deg=0.05, range_bias_sigma_m=0.004, stamp_jitter_s=0.001),
+        ),
+        Scenario(
+            name="blind_turn",
+            description="~520 m: 240 m of open land at 4.5-8 m/s ending in a 90-degree turn on open land",
+            layout=StreetLayout(
+                street_x_m=(0.0, 120.0, 360.0),
+                street_y_m=(0.0, 50.0),
+                # Open land on both sides of the southern street from x = 120 m and all around the
+                # corner at x = 360 m: the turn comes at the end of the feature-poor stretch and is
+                # itself blind; buildings return north of y = 50 m.
+                block_kinds=((2, 0, "open"), (2, 1, "open"), (3, 0, "open"), (3, 1, "open")),
+            ),
+            route_m=((20.0, 0.0), (360.0, 0.0), (360.0, 50.0), (220.0, 50.0)),
+            route=RouteParams(
+                cruise_speed_mps=8.0,
+                random_speed_min_mps=4.5,
+                speed_stretch_m=(50.0, 120.0),
+                max_lateral_accel_mps2=3.0,
+                vibration_deg=0.05,
+                vibration_heave_m=0.0003,
             ),
         ),
     )

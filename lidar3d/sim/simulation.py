@@ -11,6 +11,12 @@ Typical use from Python (nothing is written to disk)::
     sim.ground_truth      # Trajectory of the lidar at every scan stamp
     sim.T_world_lidar_at(stamps_ns)  # true pose at any time, e.g. per point for deskewing checks
 
+Stamps: sweep ``k`` starts ``k`` scan periods after ``start_time_ns``. The header stamp written
+(``stamps_ns``) is that sweep start, or the firing time of the sweep's last column with
+:attr:`StampMode.SWEEP_END`, plus the stamp jitter if any; the ground truth is always the true
+lidar pose at the header stamp, whatever it marks. With jitter, the route starts ``stamp_jitter_s``
+before the first sweep, so that every stamp lies within the drive.
+
 Every random draw is seeded from ``(seed, purpose, index)``, so a scan does not depend on which other
 scans were generated, nor in which order: the same scenario and seed give the same data.
 """
@@ -26,7 +32,7 @@ import numpy as np
 from lidar3d.errors import SimulationError
 from lidar3d.records import Trajectory
 from lidar3d.sensors import SensorModel, sensor_model
-from lidar3d.sim.lidar import LidarParams, LidarSimulator, SimulatedScan
+from lidar3d.sim.lidar import LidarParams, LidarSimulator, SimulatedScan, StampMode
 from lidar3d.sim.rig import RigParams
 from lidar3d.sim.scenarios import DEFAULT_SCENARIO, Scenario, get_scenario
 from lidar3d.sim.span import SpanParams, degraded_window_ns, span_log_lines
@@ -39,6 +45,7 @@ logger = logging.getLogger(__name__)
 
 DEFAULT_START_TIME_NS = 1_715_677_200 * 1_000_000_000  # 2024-05-14T09:00:00Z
 _SCAN_STREAM = 0x5CA9
+_STAMP_STREAM = 0x57A3
 
 
 class Simulation:
@@ -49,7 +56,7 @@ class Simulation:
         seed: seeds the world, the measurement noise and the GNSS errors.
         duration_s: simulate only the first ``duration_s`` seconds (default: the whole route).
         sensor: a sensor preset name (``vlp16``, ``hdl32e``, ``vlp32c``) or a :class:`SensorModel`.
-        lidar: measurement model.
+        lidar: measurement model (default: the scenario's).
         span: simulated SPAN receiver.
         rig: lidar and antenna mounting on the vehicle.
         start_time_ns: UNIX time (UTC) of the first sweep.
@@ -78,13 +85,15 @@ class Simulation:
                 raise SimulationError(str(err.args[0])) from None
         self.sensor: SensorModel = sensor
         self.seed = int(seed)
-        self.lidar_params = lidar or LidarParams()
+        self.lidar_params = lidar or self.scenario.lidar
         self.span_params = span or SpanParams()
         self.rig = rig or RigParams()
         self.start_time_ns = int(start_time_ns)
         self.world = generate_world(self.scenario.layout, self.scenario.world, self.seed)
-        self.motion = VehicleMotion(self.scenario.route_m, self.world.terrain, self.scenario.route)
+        self.motion = VehicleMotion(self.scenario.route_m, self.world.terrain, self.scenario.route, self.seed)
         self.scan_period_ns = int(round(1e9 / self.sensor.rotation_hz))
+        jitter_s = self.lidar_params.stamp_jitter_s
+        self._route_lead_s = jitter_s  # route time of the first sweep start
         available_s = self.motion.duration_s
         if duration_s is None:
             duration_s = available_s
@@ -93,10 +102,12 @@ class Simulation:
                 f"scenario {self.scenario.name!r} lasts {available_s:.1f} s; duration must be in (0, {available_s:.1f}]"
             )
         # Every sweep must end within the route; integer nanoseconds avoid float floor surprises.
-        n_scans = int(round(min(duration_s, available_s) * 1e9)) // self.scan_period_ns
+        n_scans = int(round(min(duration_s, available_s - 2.0 * jitter_s) * 1e9)) // self.scan_period_ns
         if n_scans < 1:
             raise SimulationError(f"duration {duration_s} s is shorter than one sweep ({self.scan_period_ns / 1e9} s)")
-        self.stamps_ns = self.start_time_ns + self.scan_period_ns * np.arange(n_scans, dtype=np.int64)
+        self.sweep_start_ns = self.start_time_ns + self.scan_period_ns * np.arange(n_scans, dtype=np.int64)
+        self.sweep_start_ns.flags.writeable = False
+        self.stamps_ns = self.sweep_start_ns + self._stamp_offsets_ns(n_scans)
         self.stamps_ns.flags.writeable = False
         self.T_imu_lidar = self.rig.T_imu_lidar
         self.T_imu_lidar.flags.writeable = False
@@ -110,12 +121,24 @@ class Simulation:
         """Time from the first sweep's start to the last sweep's end."""
         return len(self) * self.scan_period_ns * 1e-9
 
-    def _seconds(self, stamps_ns) -> np.ndarray:
-        return (np.atleast_1d(np.asarray(stamps_ns, dtype=np.int64)) - self.start_time_ns) * 1e-9
+    def _stamp_offsets_ns(self, n_scans: int) -> np.ndarray:
+        """(n_scans,) header stamp minus sweep start: the sweep-end offset and the jitter."""
+        period_s = self.sensor.sweep_period_s
+        last_column_s = (self.sensor.n_columns - 1) * (period_s / self.sensor.n_columns)
+        end_ns = int(round(last_column_s * 1e9)) if self.lidar_params.stamp == StampMode.SWEEP_END else 0
+        jitter_s = self.lidar_params.stamp_jitter_s
+        if jitter_s == 0.0:
+            return np.full(n_scans, end_ns, dtype=np.int64)
+        jitter = np.random.default_rng([self.seed, _STAMP_STREAM]).uniform(-jitter_s, jitter_s, n_scans)
+        return end_ns + np.rint(jitter * 1e9).astype(np.int64)
+
+    def route_seconds(self, stamps_ns) -> np.ndarray:
+        """(N,) route time (seconds since the route start, the time base of :attr:`motion`) of UNIX times in ns."""
+        return (np.atleast_1d(np.asarray(stamps_ns, dtype=np.int64)) - self.start_time_ns) * 1e-9 + self._route_lead_s
 
     def T_world_imu_at(self, stamps_ns) -> np.ndarray:
         """(N, 4, 4) true IMU (SPAN vehicle frame) poses at UNIX times in nanoseconds."""
-        return self.motion.pose_at(self._seconds(stamps_ns))
+        return self.motion.pose_at(self.route_seconds(stamps_ns))
 
     def T_world_lidar_at(self, stamps_ns) -> np.ndarray:
         """(N, 4, 4) true lidar poses at UNIX times in nanoseconds (any time within the drive)."""
@@ -123,7 +146,7 @@ class Simulation:
 
     @functools.cached_property
     def ground_truth(self) -> Trajectory:
-        """The lidar pose at every scan stamp (sweep start)."""
+        """The true lidar pose at every header stamp (see the module docstring for what a stamp marks)."""
         return Trajectory(self.stamps_ns, self.T_world_lidar_at(self.stamps_ns))
 
     @property
@@ -140,10 +163,11 @@ class Simulation:
             raise SimulationError(f"scan index {index} out of range for {n} scans")
         index %= n
         lidar = self.lidar
-        t_s = index * self.scan_period_ns * 1e-9 + lidar.column_time_s
+        t_s = index * self.scan_period_ns * 1e-9 + self._route_lead_s + lidar.column_time_s
         poses = self.motion.pose_at(t_s) @ self.T_imu_lidar
         rng = np.random.default_rng([self.seed, _SCAN_STREAM, index])
-        return lidar.cast(index, int(self.stamps_ns[index]), poses, rng)
+        stamp_ns = int(self.stamps_ns[index])
+        return lidar.cast(index, stamp_ns, poses, rng, self.T_world_lidar_at(stamp_ns)[0])
 
     def scans(self, start: int = 0, stop: int | None = None) -> Iterator[SimulatedScan]:
         """Simulate sweeps ``start`` to ``stop - 1`` lazily, in order."""
@@ -156,11 +180,21 @@ class Simulation:
         gt = self.ground_truth
         return find_revisits(gt.stamps_ns, gt.T_world_lidar, radius_m=radius_m, min_gap_s=min_gap_s)
 
+    def stop_spans_ns(self) -> list[tuple[int, int]]:
+        """UNIX (start, end) of every stop of the vehicle that begins within the simulated sweeps."""
+        origin_ns = self.start_time_ns - int(round(self._route_lead_s * 1e9))
+        end_ns = int(self.sweep_start_ns[-1]) + self.scan_period_ns
+        spans = [
+            (origin_ns + int(round(a * 1e9)), origin_ns + int(round(b * 1e9))) for a, b in self.motion.stop_intervals_s
+        ]
+        return [(a, b) for a, b in spans if a < end_ns]
+
     def span_log_lines(self) -> list[str]:
         """The NovAtel ASCII log (INSPVAXA 20 Hz, BESTPOSA 1 Hz) of the drive, one CR LF line each."""
+        lead_s = self._route_lead_s
         return span_log_lines(
-            self.motion.pose_at,
-            self.motion.velocity_at,
+            lambda t_s: self.motion.pose_at(t_s + lead_s),
+            lambda t_s: self.motion.velocity_at(t_s + lead_s),
             duration_s=self.duration_s,
             start_time_ns=self.start_time_ns,
             imu_to_antenna_m=self.rig.imu_to_antenna_m,

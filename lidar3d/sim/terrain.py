@@ -101,7 +101,8 @@ def make_terrain(
     phases = rng.uniform(0.0, 2.0 * np.pi, size=k)
     weights = rng.uniform(0.5, 1.0, size=k) * wavelengths  # longer waves swing higher
     wave_vectors = (2.0 * np.pi / wavelengths)[:, None] * np.column_stack([np.cos(directions), np.sin(directions)])
-    terrain = Terrain(wave_vectors, weights, phases, tuple(float(v) for v in extent_m), params.grid_spacing_m)
+    x_min, x_max, y_min, y_max = (float(v) for v in extent_m)
+    terrain = Terrain(wave_vectors, weights, phases, (x_min, x_max, y_min, y_max), params.grid_spacing_m)
     if params.max_slope_deg == 0.0:
         return Terrain(wave_vectors, np.zeros(k), phases, terrain.extent_m, params.grid_spacing_m)
     gx, gy = terrain.grid_axes_m()

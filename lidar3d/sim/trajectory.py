@@ -2,27 +2,40 @@
 
 A route is a polyline of street-grid nodes. Its corners are rounded with circular arcs, the path is
 moved ``lane_offset_m`` to the right of the centre line (driving on the right), and a C2 cubic
-spline through the result gives position and heading at every instant. The speed follows the
-cruise speed, slows for curvature (lateral-acceleration limit) and obeys acceleration and braking
-limits; time is integrated along the path and inverted with a monotone (PCHIP) interpolant.
+spline through the result gives position and heading at every instant. The speed follows a target
+(the cruise speed by default; optionally a target per stretch of road, explicit or drawn from the
+seed, with smooth transitions), slows for curvature (lateral-acceleration limit), comes to 0 m/s at
+stops and obeys acceleration and braking limits; time is integrated along the path and inverted
+with a monotone interpolant (PCHIP for the plain cruise-speed drive; with a speed profile or stops,
+a cubic Hermite spline whose knot slopes are the planned speeds, exact under constant acceleration).
+A stop is a pair of knots at the same path position: the pose is exactly still for the hold.
 
 The vehicle frame is the SPAN vehicle/IMU frame (x right, y forward, z up), its origin the IMU. The
 vehicle stands on the terrain: its z axis is the terrain normal (roll and pitch come from the slope),
 its y axis the path heading projected onto the terrain plane, and the IMU sits ``imu_height_m``
-above the ground along the normal.
+above the ground along the normal. Optionally the body vibrates on its suspension: pitch (about the
+vehicle x axis), roll (about y) and heave (along the terrain normal) from a band-limited random
+process (a sum of sinusoids at random frequencies within ``vibration_band_hz``), on top of the slope
+attitude, scaled down at walking pace and zero while the vehicle stands.
+
+Every new behaviour is off by default: ``RouteParams()`` drives exactly as before.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.interpolate import CubicSpline, PchipInterpolator
+from scipy.interpolate import CubicHermiteSpline, CubicSpline, PchipInterpolator
+from scipy.spatial.transform import Rotation
 
 from lidar3d.errors import SimulationError
 from lidar3d.sim.terrain import Terrain
 
 __all__ = ["RevisitPair", "RouteParams", "VehicleMotion", "find_revisits", "group_revisits"]
+
+_MOTION_STREAM = 0x5BEED
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,13 +44,32 @@ class RouteParams:
 
     Attributes:
         corner_radius_m: radius of the arcs that round the route's corners (street centre line).
-        cruise_speed_mps: speed on straight road.
-        min_speed_mps: speed floor (also the speed at the start).
+        cruise_speed_mps: speed on straight road; with a speed profile, its upper bound.
+        min_speed_mps: speed floor except at stops (also the speed at the start).
         max_lateral_accel_mps2: curvature speed limit, v <= sqrt(a_lat / curvature).
         max_accel_mps2: acceleration limit.
         max_decel_mps2: braking limit.
         lane_offset_m: distance of the driven path to the right of the street centre line.
         imu_height_m: height of the IMU above the ground.
+        speed_targets: ``(path position m, speed m/s)`` pairs, ascending positions: from each
+            position on, the vehicle aims at that speed (before the first one: the cruise speed).
+            Each speed must lie in [min_speed_mps, cruise_speed_mps]. Path positions are distances
+            along the driven path from the route start.
+        random_speed_min_mps: when > 0, the route is cut into stretches of random length within
+            ``speed_stretch_m``; the target speed at each stretch end is drawn uniformly in
+            [random_speed_min_mps, cruise_speed_mps] from the simulation seed and the target varies
+            linearly in between, so the speed is never constant for long (exclusive with
+            ``speed_targets``).
+        speed_stretch_m: (shortest, longest) stretch of the random speed profile.
+        speed_transition_m: the target is smoothed with a raised-cosine window this long (explicit
+            targets change over this length); the acceleration and braking limits still apply.
+        stops: ``(path position m, hold s)`` pairs: the vehicle brakes to 0 m/s at that position,
+            stands exactly still for the hold and pulls away again.
+        vibration_deg: RMS of the suspension pitch and of the roll (each), in degrees (0: none).
+        vibration_heave_m: RMS of the vertical suspension motion along the terrain normal.
+        vibration_band_hz: (lowest, highest) frequency of the vibration.
+        vibration_full_speed_mps: below this speed the vibration amplitude shrinks in proportion to
+            the speed (zero at a stop).
     """
 
     corner_radius_m: float = 10.0
@@ -48,10 +80,43 @@ class RouteParams:
     max_decel_mps2: float = 2.0
     lane_offset_m: float = 1.5
     imu_height_m: float = 1.0
+    speed_targets: tuple[tuple[float, float], ...] = ()
+    random_speed_min_mps: float = 0.0
+    speed_stretch_m: tuple[float, float] = (40.0, 120.0)
+    speed_transition_m: float = 30.0
+    stops: tuple[tuple[float, float], ...] = ()
+    vibration_deg: float = 0.0
+    vibration_heave_m: float = 0.0
+    vibration_band_hz: tuple[float, float] = (5.0, 20.0)
+    vibration_full_speed_mps: float = 3.0
 
     def __post_init__(self) -> None:
         if not 0.0 < self.min_speed_mps <= self.cruise_speed_mps:
             raise SimulationError("route speeds must satisfy 0 < min_speed_mps <= cruise_speed_mps")
+        speeds = [v for _, v in self.speed_targets]
+        if self.random_speed_min_mps > 0.0:
+            if self.speed_targets:
+                raise SimulationError("route: give speed_targets or random_speed_min_mps, not both")
+            speeds.append(self.random_speed_min_mps)
+        if any(not self.min_speed_mps <= v <= self.cruise_speed_mps for v in speeds):
+            raise SimulationError("route target speeds must lie in [min_speed_mps, cruise_speed_mps]")
+        for name, pairs in (("speed_targets", self.speed_targets), ("stops", self.stops)):
+            positions = [p for p, _ in pairs]
+            if any(b <= a for a, b in itertools.pairwise(positions)) or any(p < 0.0 for p in positions):
+                raise SimulationError(f"route {name} positions must be >= 0 and ascending")
+        if any(hold <= 0.0 for _, hold in self.stops):
+            raise SimulationError("route stop holds must be positive")
+        if not 0.0 < self.speed_stretch_m[0] <= self.speed_stretch_m[1] or self.speed_transition_m <= 0.0:
+            raise SimulationError("route speed_stretch_m must be 0 < shortest <= longest and speed_transition_m > 0")
+        if min(self.vibration_deg, self.vibration_heave_m) < 0.0 or self.vibration_full_speed_mps <= 0.0:
+            raise SimulationError("route vibration amplitudes must be >= 0 and vibration_full_speed_mps > 0")
+        if not 0.0 < self.vibration_band_hz[0] < self.vibration_band_hz[1]:
+            raise SimulationError("route vibration_band_hz must be 0 < lowest < highest")
+
+    @property
+    def vibrates(self) -> bool:
+        """Whether the body moves on its suspension."""
+        return self.vibration_deg > 0.0 or self.vibration_heave_m > 0.0
         if min(self.max_lateral_accel_mps2, self.max_accel_mps2, self.max_decel_mps2) <= 0.0:
             raise SimulationError("route acceleration limits must be positive")
         if self.corner_radius_m <= abs(self.lane_offset_m):
@@ -102,9 +167,15 @@ class VehicleMotion:
         nodes_m: (M, 2) route nodes in the world frame.
         terrain: the ground the vehicle drives on.
         params: driving parameters.
+        seed: seeds the random speed profile and the vibration (unused when neither is on).
+
+    Attributes:
+        length_m: length of the driven path.
+        duration_s: time to drive it, stops included.
+        stop_intervals_s: (start, end) route times of each stop, in order.
     """
 
-    def __init__(self, nodes_m, terrain: Terrain, params: RouteParams) -> None:
+    def __init__(self, nodes_m, terrain: Terrain, params: RouteParams, seed: int = 0) -> None:
         nodes = np.asarray(nodes_m, dtype=float)
         if nodes.ndim != 2 or nodes.shape[1] != 2 or len(nodes) < 2:
             raise SimulationError("a route needs at least two (x, y) nodes")
@@ -129,9 +200,13 @@ class VehicleMotion:
         speed_scale = np.linalg.norm(d1, axis=1)
         curvature = np.abs(d1[:, 0] * d2[:, 1] - d1[:, 1] * d2[:, 0]) / speed_scale**3
         limit = np.sqrt(params.max_lateral_accel_mps2 / np.maximum(curvature, 1e-9))
-        v = np.clip(limit, params.min_speed_mps, params.cruise_speed_mps)
         ds = np.diff(u) * 0.5 * (speed_scale[1:] + speed_scale[:-1])
+        position = np.concatenate([[0.0], np.cumsum(ds)])  # distance along the path at each sample
+        rng = np.random.default_rng([int(seed), _MOTION_STREAM])
+        v = np.clip(limit, params.min_speed_mps, self._target_speed(position, rng))
         v[0] = params.min_speed_mps
+        stop_index = self._stop_indices(position)
+        v[stop_index] = 0.0
         for k in range(1, len(v)):  # acceleration limit, forwards
             v[k] = min(v[k], np.sqrt(v[k - 1] ** 2 + 2.0 * params.max_accel_mps2 * ds[k - 1]))
         for k in range(len(v) - 2, -1, -1):  # braking limit, backwards
@@ -140,8 +215,55 @@ class VehicleMotion:
         self.max_speed_reached_mps = float(v.max())
         dt = ds / (0.5 * (v[1:] + v[:-1]))
         t = np.concatenate([[0.0], np.cumsum(dt)])
+        # A stop is a second knot at the same path position, the hold later: the interpolant is flat between.
+        holds = np.zeros(len(u))
+        holds[stop_index] = [hold for _, hold in params.stops]
+        arrive = t + np.concatenate([[0.0], np.cumsum(holds)[:-1]])
+        t = np.insert(arrive, stop_index + 1, arrive[stop_index] + holds[stop_index])
+        u = np.insert(u, stop_index + 1, u[stop_index])
+        self._t_knots = t
+        self._v_knots = np.insert(v, stop_index + 1, 0.0)
+        self.stop_intervals_s = tuple((float(arrive[k]), float(arrive[k] + holds[k])) for k in stop_index)
         self.duration_s = float(t[-1])
-        self._u_of_t = PchipInterpolator(t, u)
+        if params.stops or params.speed_targets or params.random_speed_min_mps > 0.0:
+            # Knot slopes from the planned speeds: exact on constant-acceleration stretches (PCHIP's own
+            # slope estimates make acceleration spikes of several m/s^2 when braking into a stop).
+            du_dt = self._v_knots / np.insert(speed_scale, stop_index + 1, 1.0)
+            self._u_of_t = CubicHermiteSpline(t, u, du_dt)
+        else:  # the cruise-speed drive, exactly as it always was
+            self._u_of_t = PchipInterpolator(t, u)
+        self._vibration = _Vibration(params, rng, self.duration_s) if params.vibrates else None
+
+    def _target_speed(self, position_m: np.ndarray, rng: np.random.Generator) -> float | np.ndarray:
+        """The speed the driver aims at: the cruise speed, or a smoothed per-stretch profile along ``position_m``."""
+        params = self.params
+        if params.speed_targets:  # held from each position on
+            starts = np.array([0.0] + [p for p, _ in params.speed_targets])
+            speeds = np.array([params.cruise_speed_mps] + [v for _, v in params.speed_targets])
+            target = speeds[np.searchsorted(starts, position_m, side="right") - 1]
+        elif params.random_speed_min_mps > 0.0:  # linear between random speeds at random stretch ends
+            ends = [0.0]
+            while ends[-1] < position_m[-1]:
+                ends.append(ends[-1] + rng.uniform(*params.speed_stretch_m))
+            speeds = rng.uniform(params.random_speed_min_mps, params.cruise_speed_mps, len(ends))
+            target = np.interp(position_m, ends, speeds)
+        else:
+            return params.cruise_speed_mps
+        spacing = position_m[-1] / (len(position_m) - 1)
+        half = max(1, int(round(0.5 * params.speed_transition_m / spacing)))
+        window = np.hanning(2 * half + 1)
+        padded = np.concatenate([np.full(half, target[0]), target, np.full(half, target[-1])])
+        return np.convolve(padded, window / window.sum(), mode="valid")
+
+    def _stop_indices(self, position_m: np.ndarray) -> np.ndarray:
+        """Path sample index of each stop (ascending); raises for stops off the route or too close together."""
+        stops = np.array([p for p, _ in self.params.stops], dtype=float)
+        if stops.size and (stops.max() > position_m[-1] - 1.0 or stops.min() < 1.0):
+            raise SimulationError(f"route stops must lie between 1 m and {position_m[-1] - 1.0:.1f} m along the path")
+        index = np.searchsorted(position_m, stops).astype(np.int64)
+        if np.any(np.diff(index) < 2):
+            raise SimulationError("route stops must be at least 1 m apart")
+        return index
 
     def _check_times(self, t_s: np.ndarray) -> np.ndarray:
         t = np.asarray(t_s, dtype=float)
@@ -171,7 +293,17 @@ class VehicleMotion:
         ground = np.column_stack([xy, self.terrain.height_m(xy[:, 0], xy[:, 1])])
         poses[:, :3, 3] = ground + self.params.imu_height_m * up
         poses[:, 3, 3] = 1.0
+        if self._vibration is not None:
+            scale = np.clip(self.profile_speed_at(t) / self.params.vibration_full_speed_mps, 0.0, 1.0)
+            pitch, roll, heave = self._vibration.at(t) * scale
+            body = Rotation.from_rotvec(np.column_stack([pitch, roll, np.zeros(len(t))])).as_matrix()
+            poses[:, :3, :3] = poses[:, :3, :3] @ body
+            poses[:, :3, 3] += heave[:, None] * up
         return poses
+
+    def profile_speed_at(self, t_s) -> np.ndarray:
+        """(N,) speed of the planned profile (m/s) at route times ``t_s``, linear between path samples; 0 at stops."""
+        return np.interp(np.atleast_1d(self._check_times(t_s)), self._t_knots, self._v_knots)
 
     def velocity_at(self, t_s, dt_s: float = 1e-3) -> np.ndarray:
         """(N, 3) world-frame velocity of the IMU (central difference of :meth:`pose_at`)."""
@@ -179,6 +311,34 @@ class VehicleMotion:
         lo = np.clip(t - dt_s, 0.0, self.duration_s)
         hi = np.clip(t + dt_s, 0.0, self.duration_s)
         return (self.pose_at(hi)[:, :3, 3] - self.pose_at(lo)[:, :3, 3]) / (hi - lo)[:, None]
+
+
+class _Vibration:
+    """Body pitch, roll (rad) and heave (m) on the suspension: per axis a sum of sinusoids of equal
+    amplitude at random frequencies uniform in the band and random phases (band-limited, nearly
+    Gaussian), sampled every ``SAMPLE_S`` over the drive and interpolated with a C2 cubic spline
+    (relative error about 1e-5 at 20 Hz; ray casting a sweep evaluates 1800 instants)."""
+
+    N_COMPONENTS = 48
+    SAMPLE_S = 0.002
+
+    def __init__(self, params: RouteParams, rng: np.random.Generator, duration_s: float) -> None:
+        shape = (3, self.N_COMPONENTS)
+        frequency_hz = rng.uniform(*params.vibration_band_hz, size=shape)
+        phase = rng.uniform(0.0, 2.0 * np.pi, size=shape)
+        rms = np.array([np.deg2rad(params.vibration_deg)] * 2 + [params.vibration_heave_m])
+        amplitude = rms * np.sqrt(2.0 / self.N_COMPONENTS)  # RMS of K sinusoids: a sqrt(K / 2)
+        t = np.arange(0.0, duration_s + 2.0 * self.SAMPLE_S, self.SAMPLE_S)
+        values = np.empty((len(t), 3))
+        for start in range(0, len(t), 4096):
+            chunk = t[start : start + 4096]
+            angle = 2.0 * np.pi * frequency_hz[:, None, :] * chunk[None, :, None] + phase[:, None, :]
+            values[start : start + 4096] = (amplitude[:, None] * np.sin(angle).sum(axis=2)).T
+        self._spline = CubicSpline(t, values, axis=0)
+
+    def at(self, t_s: np.ndarray) -> np.ndarray:
+        """(3, N) pitch, roll, heave at route times ``t_s``."""
+        return self._spline(t_s).T
 
 
 @dataclass(frozen=True, slots=True)
@@ -204,6 +364,12 @@ class RevisitPair:
     heading_change_deg: float
     query_position_m: tuple[float, float, float]
     match_position_m: tuple[float, float, float]
+
+
+def _xyz(position: np.ndarray) -> tuple[float, float, float]:
+    """A (3,) position as a tuple of floats."""
+    x, y, z = (float(v) for v in position)
+    return x, y, z
 
 
 def find_revisits(
@@ -237,8 +403,8 @@ def find_revisits(
                 match_stamp_ns=int(stamps[j]),
                 distance_m=float(distance[best]),
                 heading_change_deg=float(change),
-                query_position_m=tuple(float(v) for v in positions[i]),
-                match_position_m=tuple(float(v) for v in positions[j]),
+                query_position_m=_xyz(positions[i]),
+                match_position_m=_xyz(positions[j]),
             )
         )
     return pairs

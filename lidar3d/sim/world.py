@@ -469,7 +469,8 @@ def generate_world(layout: StreetLayout, params: WorldParams, seed: int) -> Worl
         + [np.full(len(t), object_id, dtype=np.int32) for (_, t), object_id in zip(builder.meshes, builder.ids)]
     )
     x0, x1, y0, y1 = layout.extent_m
-    centers = np.vstack([[0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0]] + builder.centers)
+    ground_center = np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0])
+    centers = np.vstack([ground_center] + builder.centers)
     return World(
         vertices_m=vertices,
         triangles=triangles.astype(np.int32),
