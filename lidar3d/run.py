@@ -83,11 +83,17 @@ def _summary(
         loop_candidates=len(result.loop_candidates),
         loop_ms_total=round(result.loop_ms_total, 1),
         counts=RunCounts(**result.counts),
-        warnings=tuple(result.warnings),
+        warnings=(*result.warnings, *_input_warnings(input_stats)),
         pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
         input_stats=input_stats,
         map_rebuild_s=map_rebuild_s,
     )
+
+
+def _input_warnings(input_stats: InputStatistics | None) -> tuple[str, ...]:
+    """The warning about damaged input points, when the input sanity stage dropped any."""
+    warning = input_stats.damage_warning() if input_stats is not None else None
+    return () if warning is None else (warning,)
 
 
 def write_outputs(out_dir: Path, result: SlamResult, summary: RunSummary, *, with_map: bool = True) -> None:
@@ -184,8 +190,12 @@ def run_bag(
             points_kept=stats.n_points_kept,
             nonfinite_dropped=stats.n_nonfinite,
             below_min_range_dropped=stats.n_below_min_range,
+            absurd_coordinates_dropped=stats.n_absurd_coordinates,
+            outlier_times_dropped=stats.n_outlier_times,
             messages_lost=stats.n_lost_messages,
         )
+        for warning in _input_warnings(input_stats):
+            log.warning("%s: %s", ", ".join(inputs), warning)
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
         pipeline.finish()

@@ -12,7 +12,8 @@ Layout of ``summary.json`` (keys in this order; optional keys are left out when 
     deskew, odometry, mapping, map_update[, redeskew]}, map_points, loop_closures, loop_candidates,
     loop_ms_total, counts {scans[, redeskewed_scans, motion_model_scans, degenerate_scans,
     loop_closures, dropped_duplicate_stamps, dropped_out_of_order_stamps]}, warnings, pose_stamp
-    [, input_stats {points_kept, nonfinite_dropped, below_min_range_dropped, messages_lost}]
+    [, input_stats {points_kept, nonfinite_dropped, below_min_range_dropped, absurd_coordinates_dropped,
+    outlier_times_dropped, messages_lost}]
     [, map_rebuild_s] [, evaluation {report, table, ate {translation_3d_m, horizontal_m,
     vertical_m, rotation_deg: {rmse, mean, median, std, min, max, n}}}] [, evaluation_error]
 
@@ -218,16 +219,34 @@ class InputStatistics:
         points_kept: points that entered the front end.
         nonfinite_dropped: points dropped for a NaN or infinite coordinate.
         below_min_range_dropped: points dropped for being closer than the sensor's minimum range.
+        absurd_coordinates_dropped: points dropped for a coordinate no sensor measures (beyond 1 km,
+            or twice the sensor's maximum range when that is farther).
+        outlier_times_dropped: points dropped for a non-finite time or one more than 1.5 sweep
+            periods from the scan's stamp.
         messages_lost: messages lost to damage in the bag (recovered bags).
     """
 
     points_kept: int
     nonfinite_dropped: int
     below_min_range_dropped: int
+    absurd_coordinates_dropped: int
+    outlier_times_dropped: int
     messages_lost: int
 
     def as_dict(self) -> dict[str, int]:
         return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+
+    def damage_warning(self) -> str | None:
+        """One warning line when points were dropped as damaged (absurd coordinates, outlier times);
+        None otherwise. Non-finite points alone make no warning: drivers write NaN for missing
+        returns in organised clouds."""
+        if not (self.absurd_coordinates_dropped or self.outlier_times_dropped):
+            return None
+        return (
+            f"input sanity: dropped {self.absurd_coordinates_dropped} points with absurd coordinates and "
+            f"{self.outlier_times_dropped} with point times outside the sweep ({self.nonfinite_dropped} "
+            "non-finite points also dropped); see input_stats in summary.json"
+        )
 
     @classmethod
     def _parse(cls, obj: _JsonObject) -> InputStatistics:

@@ -80,7 +80,12 @@ def example_summary(**changes) -> RunSummary:
         warnings=("scans 2-3: too few features, pose from the motion model",),
         pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
         input_stats=InputStatistics(
-            points_kept=2178288, nonfinite_dropped=3, below_min_range_dropped=0, messages_lost=0
+            points_kept=2178288,
+            nonfinite_dropped=3,
+            below_min_range_dropped=0,
+            absurd_coordinates_dropped=2,
+            outlier_times_dropped=1,
+            messages_lost=0,
         ),
         map_rebuild_s=3.5,
         evaluation=EvaluationSummary(
@@ -191,6 +196,10 @@ def _broken(change) -> str:
         (lambda d: d["counts"].update(scans=-0.5), "'counts.scans' must be an integer, got -0.5"),
         (lambda d: d["input_stats"].pop("messages_lost"), "key 'input_stats.messages_lost' is missing"),
         (
+            lambda d: d["input_stats"].pop("outlier_times_dropped"),
+            "key 'input_stats.outlier_times_dropped' is missing",
+        ),
+        (
             lambda d: d["evaluation"]["ate"]["translation_3d_m"].update(rmse="x"),
             "'evaluation.ate.translation_3d_m.rmse' must be a number or null, got \"x\"",
         ),
@@ -217,3 +226,20 @@ def test_files_that_are_not_summaries(tmp_path):
     path.write_text("{}")
     with pytest.raises(Lidar3dError, match=r"summary\.json: key 'lidar3d_version' is missing$"):
         read_summary(path)
+
+
+def test_input_statistics_warn_about_damaged_points_only():
+    clean = InputStatistics(
+        points_kept=10,
+        nonfinite_dropped=4,
+        below_min_range_dropped=5,
+        absurd_coordinates_dropped=0,
+        outlier_times_dropped=0,
+        messages_lost=0,
+    )
+    assert clean.damage_warning() is None  # NaN for missing returns is what drivers write
+    damaged = dataclasses.replace(clean, absurd_coordinates_dropped=2, outlier_times_dropped=1)
+    assert damaged.damage_warning() == (
+        "input sanity: dropped 2 points with absurd coordinates and 1 with point times outside the sweep "
+        "(4 non-finite points also dropped); see input_stats in summary.json"
+    )
