@@ -45,7 +45,7 @@ def _run(args: argparse.Namespace) -> int:
     for name in args.scenarios:
         cached = ensure_scenario(name, args.seed, args.duration, cache_dir=Path(args.cache or DEFAULT_CACHE))
         run_dir = out / name
-        outcome = run_bag(cached.bag, run_dir, config=Config(), prefetch=False)
+        outcome = run_bag(cached.bag, run_dir, config=Config(), prefetch=False, overwrite=True)
         result = outcome.result
         for record in RECORDS:
             trajectory = getattr(result, record)
