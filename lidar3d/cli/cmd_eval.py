@@ -62,9 +62,11 @@ def run(args: argparse.Namespace) -> int:
     from lidar3d.errors import GnssError
     from lidar3d.export.span_report import format_span_table, write_span_report
     from lidar3d.gnss.enu import GeodeticOrigin
+    from lidar3d.io.run_folder import check_run_output
     from lidar3d.metrics.span_eval import evaluate_span_files
 
     config = load_config(args.config).gnss
+    check_run_output(args.trajectory)
     origin = None
     if args.origin is not None:
         try:
