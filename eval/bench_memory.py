@@ -60,7 +60,7 @@ def make_bag(path: Path, n_scans: int) -> None:
 
 
 def measure(bag: Path, out: Path) -> dict:
-    command = [sys.executable, "-m", "lidar3d.cli.main", "-q", "run", str(bag), "--out", str(out)]
+    command = [sys.executable, "-m", "lidar3d.cli.main", "-q", "run", str(bag), "--out", str(out), "--overwrite"]
     t0 = time.perf_counter()
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
     peak = 0

@@ -79,7 +79,7 @@ def profile_scenario(args: argparse.Namespace) -> int:
 
         profiler = Profiler(interval=0.001)
         profiler.start()
-        outcome = run_bag(case.bag, out_dir / "run")
+        outcome = run_bag(case.bag, out_dir / "run", overwrite=True)
         profiler.stop()
         session = profiler.last_session
         tree = profiler.output(
@@ -101,7 +101,7 @@ def profile_scenario(args: argparse.Namespace) -> int:
 
         profiler = cProfile.Profile()
         profiler.enable()
-        outcome = run_bag(case.bag, out_dir / "run")
+        outcome = run_bag(case.bag, out_dir / "run", overwrite=True)
         profiler.disable()
         profiler.dump_stats(str(out_dir / "profile.pstats"))
         texts = []

@@ -75,7 +75,7 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool 
     config = Config()
     if not loop_closure:
         config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
-    outcome = run_bag(bag, out, max_scans=max_scans, config=config)
+    outcome = run_bag(bag, out, max_scans=max_scans, config=config, overwrite=True)
     summary = outcome.summary
     timings = {k: np.asarray(v) for k, v in outcome.result.timings_ms.items()}
     return {

@@ -51,7 +51,7 @@ def _run(args: argparse.Namespace) -> int:
         config = Config()
         if args.no_loop:
             config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
-        outcome = run_bag(cached.bag, run_dir, config=config, prefetch=False)
+        outcome = run_bag(cached.bag, run_dir, config=config, prefetch=False, overwrite=True)
         result = outcome.result
         for record in RECORDS:
             trajectory = getattr(result, record)

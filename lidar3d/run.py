@@ -1,18 +1,23 @@
-"""``lidar3d run``: SLAM over one recording, with every output published atomically.
+"""``lidar3d run``: SLAM over one recording, its outputs published as one consistent set.
 
 Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
 
 * ``trajectory_tum.txt`` / ``trajectory_kitti.txt`` (+ ``.times.txt``): refined pose of every scan;
 * ``odometry_tum.txt``: scan-to-scan odometry; ``keyframes_tum.txt``: keyframe poses;
 * ``map.pcd``: dense voxel map (deskewed scans placed with the final poses), with intensity;
-* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag
-  (:class:`lidar3d.summary.RunSummary`; read it back with :func:`lidar3d.summary.read_summary`);
+* ``loops.csv``, ``pose_graph.g2o``, ``trajectory_loops.png``: the loop outputs (loop closure on);
+* ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag and the
+  manifest of every other file (:class:`lidar3d.summary.RunSummary`; read it back with
+  :func:`lidar3d.summary.read_summary`, or :func:`lidar3d.io.run_folder.read_run_folder` to check
+  the folder too);
 * ``config.toml``: the resolved configuration; ``eval/``: the GNSS report when a SPAN log is given.
 
 Every pose is the lidar pose at the scan's header stamp (sweep start for the velodyne driver).
 While running, trajectories and the summary are checkpointed every ``checkpoint_every_s`` and the
 map every ``map_checkpoint_every_s``; an interruption or crash publishes everything finished so
-far, marked ``"partial": true``.
+far, marked ``"partial": true``. Each publication replaces the whole set in the folder
+(:func:`lidar3d.io.run_folder.publish_set`): a kill at any moment leaves the previous set or the new
+one, and the summary always describes exactly the files beside it.
 """
 
 from __future__ import annotations
@@ -29,16 +34,17 @@ import numpy as np
 
 from lidar3d import __version__
 from lidar3d.config import Config, config_to_toml
-from lidar3d.errors import Lidar3dError
+from lidar3d.errors import Lidar3dError, OutputError
 from lidar3d.io.atomic import write_text_atomic
 from lidar3d.io.pcd import write_pcd
+from lidar3d.io.run_folder import existing_run_outputs, publish_set
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import write_kitti, write_tum
 from lidar3d.pipeline import SlamPipeline, SlamResult
 from lidar3d.prefetch import open_prepared_scans
 from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
 
-__all__ = ["RunOutcome", "run_bag", "write_outputs"]
+__all__ = ["RunOutcome", "run_bag"]
 
 log = logging.getLogger(__name__)
 
@@ -83,25 +89,73 @@ def _summary(
         loop_candidates=len(result.loop_candidates),
         loop_ms_total=round(result.loop_ms_total, 1),
         counts=RunCounts(**result.counts),
-        warnings=tuple(result.warnings),
+        warnings=(*result.warnings, *_input_warnings(input_stats)),
         pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
         input_stats=input_stats,
         map_rebuild_s=map_rebuild_s,
     )
 
 
-def write_outputs(out_dir: Path, result: SlamResult, summary: RunSummary, *, with_map: bool = True) -> None:
-    """Publish trajectories, (optionally) the map, and the summary, each atomically."""
-    out_dir.mkdir(parents=True, exist_ok=True)
-    write_tum(out_dir / "trajectory_tum.txt", result.trajectory)
-    write_kitti(out_dir / "trajectory_kitti.txt", result.trajectory)
-    write_tum(out_dir / "odometry_tum.txt", result.odometry)
-    write_tum(out_dir / "keyframes_tum.txt", result.keyframes)
-    if with_map:
-        write_pcd(out_dir / "map.pcd", result.map_points, intensity=result.map_intensity.astype(np.float32))
-    if result.pose_graph_g2o:
-        _write_loop_outputs(out_dir, result)
-    write_text_atomic(out_dir / "summary.json", summary.to_json())
+def _input_warnings(input_stats: InputStatistics | None) -> tuple[str, ...]:
+    """The warning about damaged input points, when the input sanity stage dropped any."""
+    warning = input_stats.damage_warning() if input_stats is not None else None
+    return () if warning is None else (warning,)
+
+
+class _RunPublisher:
+    """Publishes the outputs of one run into its folder, each time as a whole set.
+
+    The map is written less often than the trajectories; between its publications the set keeps
+    the last ``map.pcd``, and the summary's ``map_points`` counts the points of that file.
+    """
+
+    def __init__(self, out_dir: Path, config: Config) -> None:
+        self.out_dir = out_dir
+        self.config = config
+        self.summary: RunSummary | None = None  # the summary of the set in the folder
+
+    def publish(self, result: SlamResult, summary: RunSummary, *, with_map: bool = True) -> RunSummary:
+        """Publish trajectories, the loop outputs, (optionally) the map, and the summary as one set."""
+        n, map_points = len(result.trajectory), len(result.map_points)
+        rows = dict.fromkeys(
+            ("trajectory_tum.txt", "trajectory_kitti.txt", "trajectory_kitti.times.txt", "odometry_tum.txt"), n
+        )
+        rows.update({"keyframes_tum.txt": len(result.keyframes), "loops.csv": len(result.loop_candidates)})
+        keep = [] if self.summary is None else ["config.toml"]
+        if with_map:
+            rows["map.pcd"] = map_points
+        else:
+            previous_map = self.summary.output("map.pcd") if self.summary is not None else None
+            keep += ["map.pcd"] if previous_map is not None else []
+            map_rows = previous_map.rows if previous_map is not None else None
+            summary = dataclasses.replace(summary, map_points=map_rows or 0)
+
+        def write(staging: Path) -> None:
+            if self.summary is None:
+                write_text_atomic(staging / "config.toml", config_to_toml(self.config))
+            write_tum(staging / "trajectory_tum.txt", result.trajectory)
+            write_kitti(staging / "trajectory_kitti.txt", result.trajectory)
+            write_tum(staging / "odometry_tum.txt", result.odometry)
+            write_tum(staging / "keyframes_tum.txt", result.keyframes)
+            if with_map:
+                intensity = result.map_intensity.astype(np.float32)
+                write_pcd(staging / "map.pcd", result.map_points, intensity=intensity)
+            if result.pose_graph_g2o:
+                _write_loop_outputs(staging, result)
+
+        self.summary = publish_set(self.out_dir, summary, write, rows=rows, keep=keep)
+        return self.summary
+
+    def publish_evaluation(self, evaluation, summary: RunSummary) -> RunSummary:
+        """Add the evaluation report (``eval/``) to the published set, with ``summary``."""
+        from lidar3d.export.span_report import write_span_report
+
+        assert self.summary is not None, "the run's outputs are published before its evaluation"
+        keep = [entry.path for entry in self.summary.outputs if not entry.path.startswith("eval/")]
+        self.summary = publish_set(
+            self.out_dir, summary, lambda staging: write_span_report(evaluation, staging / "eval"), keep=keep
+        )
+        return self.summary
 
 
 def _write_loop_outputs(out_dir: Path, result: SlamResult) -> None:
@@ -131,6 +185,7 @@ def run_bag(
     checkpoint_every_s: float = 10.0,
     map_checkpoint_every_s: float = 60.0,
     prefetch: bool = True,
+    overwrite: bool = False,
 ) -> RunOutcome:
     """Run SLAM over the bag(s) ``paths`` and write every output into ``out_dir``.
 
@@ -141,15 +196,22 @@ def run_bag(
         on_scan: called as ``on_scan(done, total)`` after each scan (progress display).
         prefetch: read the bag and run the front end in a second process, a few scans ahead
             (uses a second core; turn off when several runs share the cores, as in a batch).
+        overwrite: replace the outputs of an earlier run in ``out_dir`` (they stay until this run
+            publishes its first set, which removes every file it does not hold).
+
+    Raises:
+        OutputError: ``out_dir`` already holds the outputs of a run and ``overwrite`` is false.
     """
     config = config or Config()
     out = Path(out_dir)
     paths = [paths] if isinstance(paths, (str, Path)) else list(paths)
     inputs = [str(p) for p in paths]
-    # Check the evaluation inputs now, not after a run of hours.
+    # Check the evaluation inputs and the output folder now, not after a run of hours.
     T_imu_lidar = _check_evaluation_inputs(span_log, extrinsics)
+    _check_output_folder(out, overwrite)
 
     pipeline = SlamPipeline(config)
+    publisher = _RunPublisher(out, config)
     read_ms: list[float] = []
     t_start = time.perf_counter()
     last_checkpoint = last_map_checkpoint = t_start
@@ -160,7 +222,7 @@ def run_bag(
     try:
         with open_prepared_scans(paths, config, start=start, max_scans=max_scans, prefetch=prefetch) as stream:
             # Only a bag that opens gets an output folder (created here, with a clear error).
-            write_text_atomic(out / "config.toml", config_to_toml(config))
+            _create_folder(out)
             topic = stream.topic
             total = stream.total
             done = 0
@@ -175,7 +237,7 @@ def run_bag(
                     with_map = now - last_map_checkpoint >= map_checkpoint_every_s
                     result = pipeline.result(partial=True)
                     summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms)
-                    write_outputs(out, result, summary, with_map=with_map)
+                    publisher.publish(result, summary, with_map=with_map)
                     last_checkpoint = now
                     if with_map:
                         last_map_checkpoint = now
@@ -185,7 +247,11 @@ def run_bag(
             nonfinite_dropped=stats.n_nonfinite,
             below_min_range_dropped=stats.n_below_min_range,
             messages_lost=stats.n_lost_messages,
+            absurd_coordinates_dropped=stats.n_absurd_coordinates,
+            outlier_times_dropped=stats.n_outlier_times,
         )
+        for warning in _input_warnings(input_stats):
+            log.warning("%s: %s", ", ".join(inputs), warning)
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
         pipeline.finish()
@@ -211,15 +277,34 @@ def run_bag(
                 input_stats=input_stats,
                 map_rebuild_s=map_rebuild_s,
             )
-            write_outputs(out, result, summary)
+            summary = publisher.publish(result, summary)
             if not finished:
                 log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
 
     if span_log is not None:
-        evaluation = EvaluationSummary.from_dict(_evaluate(result, span_log, T_imu_lidar, config, out))
-        summary = dataclasses.replace(summary, evaluation=evaluation)
-        write_text_atomic(out / "summary.json", summary.to_json())
+        evaluation, record = _evaluate(result, span_log, T_imu_lidar, config, out)
+        summary = dataclasses.replace(summary, evaluation=EvaluationSummary.from_dict(record))
+        summary = publisher.publish_evaluation(evaluation, summary)
+        log.info("evaluated against %s: report in %s", span_log, out / "eval")
     return RunOutcome(result, summary, out)
+
+
+def _check_output_folder(out: Path, overwrite: bool) -> None:
+    """Refuse a folder holding an earlier run's outputs, unless they are to be replaced."""
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"{out}: exists and is not a folder")
+    existing = existing_run_outputs(out)
+    if existing and not overwrite:
+        raise OutputError(
+            f"{out}: already holds the outputs of a run ({existing[0]}); pass --overwrite to replace them"
+        )
+
+
+def _create_folder(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{out}: cannot create output folder: {err.strerror or err}") from err
 
 
 def _check_evaluation_inputs(span_log, extrinsics) -> np.ndarray | None:
@@ -234,8 +319,9 @@ def _check_evaluation_inputs(span_log, extrinsics) -> np.ndarray | None:
     return read_extrinsic(extrinsics) if extrinsics is not None else None
 
 
-def _evaluate(result: SlamResult, span_log, T_imu_lidar: np.ndarray | None, config: Config, out: Path) -> dict:
-    from lidar3d.export.span_report import format_span_table, span_report_dict, write_span_report
+def _evaluate(result: SlamResult, span_log, T_imu_lidar: np.ndarray | None, config: Config, out: Path):
+    """The evaluation against the SPAN log and its summary record (as a dict); writes nothing."""
+    from lidar3d.export.span_report import format_span_table, span_report_dict
     from lidar3d.metrics import evaluate_against_span
 
     evaluation = evaluate_against_span(
@@ -245,7 +331,5 @@ def _evaluate(result: SlamResult, span_log, T_imu_lidar: np.ndarray | None, conf
         config=config.gnss,
         trajectory_source=str(out / "trajectory_tum.txt"),
     )
-    write_span_report(evaluation, out / "eval")
-    log.info("evaluated against %s: report in %s", span_log, out / "eval")
     report = span_report_dict(evaluation)
-    return {"report": str(out / "eval"), "table": format_span_table(evaluation), "ate": report.get("ate")}
+    return evaluation, {"report": str(out / "eval"), "table": format_span_table(evaluation), "ate": report.get("ate")}

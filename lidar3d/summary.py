@@ -12,9 +12,15 @@ Layout of ``summary.json`` (keys in this order; optional keys are left out when 
     deskew, odometry, mapping, map_update[, redeskew]}, map_points, loop_closures, loop_candidates,
     loop_ms_total, counts {scans[, redeskewed_scans, motion_model_scans, degenerate_scans,
     loop_closures, dropped_duplicate_stamps, dropped_out_of_order_stamps]}, warnings, pose_stamp
-    [, input_stats {points_kept, nonfinite_dropped, below_min_range_dropped, messages_lost}]
+    [, input_stats {points_kept, nonfinite_dropped, below_min_range_dropped, absurd_coordinates_dropped,
+    outlier_times_dropped, messages_lost}]
     [, map_rebuild_s] [, evaluation {report, table, ate {translation_3d_m, horizontal_m,
     vertical_m, rotation_deg: {rmse, mean, median, std, min, max, n}}}] [, evaluation_error]
+    [, outputs {<path>: {size_bytes, sha256[, rows]}, ...}]
+
+``outputs`` is the manifest of the run folder: every file of the set beside ``summary.json``
+(relative path, ``/``-separated), with what it holds. :mod:`lidar3d.io.run_folder` publishes a
+set and tells whether a folder is consistent with its summary.
 
 This module uses the standard library only: the batch runner imports it before worker processes
 have limited their BLAS threads.
@@ -36,6 +42,7 @@ __all__ = [
     "ErrorSummary",
     "EvaluationSummary",
     "InputStatistics",
+    "OutputFile",
     "RunCounts",
     "RunSummary",
     "StageMedians",
@@ -218,16 +225,34 @@ class InputStatistics:
         points_kept: points that entered the front end.
         nonfinite_dropped: points dropped for a NaN or infinite coordinate.
         below_min_range_dropped: points dropped for being closer than the sensor's minimum range.
+        absurd_coordinates_dropped: points dropped for a coordinate no sensor measures (beyond 1 km,
+            or twice the sensor's maximum range when that is farther).
+        outlier_times_dropped: points dropped for a non-finite time or one more than 1.5 sweep
+            periods from the scan's stamp.
         messages_lost: messages lost to damage in the bag (recovered bags).
     """
 
     points_kept: int
     nonfinite_dropped: int
     below_min_range_dropped: int
+    absurd_coordinates_dropped: int
+    outlier_times_dropped: int
     messages_lost: int
 
     def as_dict(self) -> dict[str, int]:
         return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+
+    def damage_warning(self) -> str | None:
+        """One warning line when points were dropped as damaged (absurd coordinates, outlier times);
+        None otherwise. Non-finite points alone make no warning: drivers write NaN for missing
+        returns in organised clouds."""
+        if not (self.absurd_coordinates_dropped or self.outlier_times_dropped):
+            return None
+        return (
+            f"input sanity: dropped {self.absurd_coordinates_dropped} points with absurd coordinates and "
+            f"{self.outlier_times_dropped} with point times outside the sweep ({self.nonfinite_dropped} "
+            "non-finite points also dropped); see input_stats in summary.json"
+        )
 
     @classmethod
     def _parse(cls, obj: _JsonObject) -> InputStatistics:
@@ -323,6 +348,60 @@ class EvaluationSummary:
 
 
 @dataclass(frozen=True, slots=True)
+class OutputFile:
+    """One file of a run folder, as the folder's summary describes it.
+
+    Attributes:
+        path: relative to the run folder, ``/``-separated (``"map.pcd"``, ``"eval/report.json"``).
+        size_bytes: size of the file, bytes.
+        sha256: SHA-256 of the file's content, 64 lower-case hex digits.
+        rows: what the file holds, counted: poses of a trajectory file, points of ``map.pcd``,
+            candidates of ``loops.csv`` (None for other files).
+    """
+
+    path: str
+    size_bytes: int
+    sha256: str
+    rows: int | None = None
+
+    def __post_init__(self) -> None:
+        parts = self.path.split("/")
+        if not self.path or "\\" in self.path or any(part in ("", ".", "..") or part.startswith(".") for part in parts):
+            raise SummaryError(f"output path {self.path!r} is not a plain relative path inside the run folder")
+
+    def as_dict(self) -> dict[str, int | str]:
+        data: dict[str, int | str] = {"size_bytes": self.size_bytes, "sha256": self.sha256}
+        if self.rows is not None:
+            data["rows"] = self.rows
+        return data
+
+    @classmethod
+    def _parse(cls, path: str, obj: _JsonObject) -> OutputFile:
+        sha256 = obj.text("sha256")
+        if len(sha256) != 64 or any(c not in "0123456789abcdef" for c in sha256):
+            raise obj.error(f"'{obj.dotted('sha256')}' must be 64 lower-case hex digits")
+        try:
+            parsed = cls(
+                path=path, size_bytes=obj.integer("size_bytes"), sha256=sha256, rows=obj.optional_integer("rows")
+            )
+        except SummaryError as err:
+            raise obj.error(str(err)) from None
+        obj.finish()
+        return parsed
+
+
+def _parse_outputs(obj: _JsonObject) -> tuple[OutputFile, ...]:
+    """The ``outputs`` manifest: path -> file record, in the order written."""
+
+    def parser(path: str) -> Callable[[_JsonObject], OutputFile]:
+        return lambda entry: OutputFile._parse(path, entry)
+
+    files = tuple(obj.record(path, parser(path)) for path in obj.data)
+    obj.finish()
+    return files
+
+
+@dataclass(frozen=True, slots=True)
 class RunSummary:
     """What one run did, as written to ``summary.json`` (see the module docstring for the layout).
 
@@ -350,6 +429,8 @@ class RunSummary:
             (None: no rebuild).
         evaluation: the evaluation against a SPAN log (None: not evaluated).
         evaluation_error: why the evaluation failed, one line (None: it did not fail; set by a batch).
+        outputs: the manifest of the run folder: every other file of the set, with its size, hash
+            and rows, sorted by path (empty: not published yet, or a summary from before manifests).
     """
 
     lidar3d_version: str
@@ -374,6 +455,11 @@ class RunSummary:
     map_rebuild_s: float | None = None
     evaluation: EvaluationSummary | None = None
     evaluation_error: str | None = None
+    outputs: tuple[OutputFile, ...] = ()
+
+    def output(self, path: str) -> OutputFile | None:
+        """The manifest entry of ``path`` (relative to the run folder), None when not in the set."""
+        return next((entry for entry in self.outputs if entry.path == path), None)
 
     def to_json(self) -> str:
         """The text of ``summary.json``: indented by 2, ending with a newline; optional keys that
@@ -406,6 +492,8 @@ class RunSummary:
             data["evaluation"] = self.evaluation.as_dict()
         if self.evaluation_error is not None:
             data["evaluation_error"] = self.evaluation_error
+        if self.outputs:
+            data["outputs"] = {entry.path: entry.as_dict() for entry in self.outputs}
         return json.dumps(data, indent=2) + "\n"
 
     @classmethod
@@ -445,6 +533,7 @@ class RunSummary:
             map_rebuild_s=obj.optional_number("map_rebuild_s"),
             evaluation=obj.optional_record("evaluation", EvaluationSummary._parse),
             evaluation_error=obj.optional_text("evaluation_error"),
+            outputs=obj.optional_record("outputs", _parse_outputs) or (),
         )
         obj.finish()
         return summary

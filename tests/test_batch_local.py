@@ -24,6 +24,7 @@ import pytest
 from lidar3d.batch import JobStatus, run_batch
 from lidar3d.batch.jobs import JOB_FILE
 from lidar3d.cli.main import main
+from lidar3d.io.run_folder import RunFolderState, check_run_folder
 from lidar3d.summary import read_summary
 
 DURATION_S = 2.0
@@ -100,6 +101,8 @@ def test_corrupt_bag_is_reported_and_the_others_finish(first_run, drives):
         assert summary.partial is False
         assert summary.evaluation is not None
         assert summary.evaluation.report == str(folder / "eval")  # staging path rewritten
+        check = check_run_folder(folder, extra=(JOB_FILE,))  # ... and the manifest with it
+        assert check.state is RunFolderState.CONSISTENT and check.unnamed == ()
     assert not [p for p in out.iterdir() if ".partial-" in p.name or ".old-" in p.name]
     with open(out / "summary.csv", newline="") as handle:
         table = list(csv.DictReader(handle))
@@ -262,3 +265,16 @@ def test_a_failed_evaluation_still_publishes_the_slam_outputs(drives, tmp_path):
     folder = outcome.out_dir / row["name"]
     assert all((folder / output).is_file() for output in OUTPUTS)
     assert json.loads((folder / JOB_FILE).read_text())["note"] == row["note"]
+    check = check_run_folder(folder, extra=(JOB_FILE,))
+    assert check.state is RunFolderState.CONSISTENT and check.summary.evaluation_error is not None
+
+
+def test_a_folder_that_is_not_the_set_its_summary_describes_is_not_up_to_date(drives, tmp_path):
+    first = run_batch([drives / "a"], tmp_path / "out", workers=1)
+    folder = first.out_dir / first.rows[0]["name"]
+    assert run_batch([drives / "a"], tmp_path / "out", workers=1).counts["up to date"] == 1
+    with open(folder / "map.pcd", "ab") as handle:  # damaged (or replaced) after publication
+        handle.write(b"\0")
+    again = run_batch([drives / "a"], tmp_path / "out", workers=1)
+    assert again.counts["done"] == 1
+    assert check_run_folder(folder, extra=(JOB_FILE,)).state is RunFolderState.CONSISTENT

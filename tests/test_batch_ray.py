@@ -13,8 +13,9 @@ from lidar3d.summary import RunSummary, read_summary
 
 ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'lidar3d[ray]')")
 
-# Fields of summary.json that measure the run rather than the result (any "..._ms..." timing too).
-TIMING_FIELDS = {"runtime_s", "scans_per_s", "evaluation"}
+# Fields of summary.json that measure the run rather than the result (any "..._ms..." timing too);
+# the manifest too: eval/report.json names the batch folder (the other entries are compared apart).
+TIMING_FIELDS = {"runtime_s", "scans_per_s", "evaluation", "outputs"}
 
 
 def _results_only(summary: RunSummary) -> dict:
@@ -39,6 +40,8 @@ def test_ray_and_local_engines_write_identical_outputs(tmp_path):
         assert summaries[0].evaluation is not None and summaries[1].evaluation is not None
         assert summaries[0].evaluation.ate == summaries[1].evaluation.ate
         assert _results_only(summaries[0]) == _results_only(summaries[1])
+        run_files = [[e for e in s.outputs if not e.path.startswith("eval/")] for s in summaries]
+        assert run_files[0] == run_files[1] and len(run_files[0]) >= 8
         jobs = [json.loads((o.out_dir / name / "batch_job.json").read_text()) for o in (local, remote)]
         assert jobs[0]["fingerprint"] == jobs[1]["fingerprint"]
 

@@ -459,8 +459,8 @@ def test_data_length_disagreeing_with_shape(tmp_path, storage):
     expected = 32 * len(scan)
     with pytest.raises(
         PointCloudError,
-        match=rf"{path.name}: /velodyne_points at stamp {scan.stamp_ns} ns: data holds {expected - 32} bytes "
-        rf"but width\*height\*point_step = {len(scan)}\*1\*32 = {expected}",
+        match=rf"{path.name}: /velodyne_points message 0 at stamp {scan.stamp_ns} ns: data holds {expected - 32} "
+        rf"bytes but width\*height\*point_step = {len(scan)}\*1\*32 = {expected}",
     ):
         read_all(path)
 

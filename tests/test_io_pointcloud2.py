@@ -17,6 +17,7 @@ from lidar3d.io.pointcloud2 import (
     encode_scan,
     time_from_azimuth,
 )
+from lidar3d.io.scan_decoder import ScanDecoder
 from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, VLP32C
 
@@ -151,7 +152,7 @@ def test_velodyne_round_trip_is_exact():
     scan = vlp_scan()
     decoded, stats = decode_parts(encode_scan(scan))
     assert_scan_equal(decoded, scan)
-    assert (stats.n_input, stats.n_nonfinite, stats.n_below_min_range, stats.n_kept) == (len(scan), 0, 0, len(scan))
+    assert (stats.n_input, stats.n_below_min_range, stats.n_kept) == (len(scan), 0, len(scan))
 
 
 OUSTER = [
@@ -242,8 +243,10 @@ def test_nonfinite_and_near_points_are_dropped_and_counted():
     points[10] = [np.inf, 1.0, 1.0]
     points[20] = [0.3, 0.2, 0.1]
     dirty = Scan(scan.stamp_ns, points, scan.intensity, scan.ring, scan.time_offset_s)
-    decoded, stats = decode_parts(encode_scan(dirty), min_range_m=1.0)
-    assert (stats.n_input, stats.n_nonfinite, stats.n_below_min_range, stats.n_kept) == (len(scan), 2, 1, len(scan) - 3)
+    decoder = ScanDecoder(VLP16, 1.0, label="test", topic="/points")
+    decoded, stats, counts = decoder.decode(encode_scan(dirty))
+    assert (stats.n_input, stats.n_below_min_range, stats.n_kept) == (len(scan), 1, len(scan) - 1)
+    assert (counts.n_nonfinite, counts.n_absurd_coordinates, counts.n_outlier_times) == (2, 0, 0)
     keep = np.ones(len(scan), bool)
     keep[[3, 10, 20]] = False
     assert_scan_equal(decoded, scan.select(keep))

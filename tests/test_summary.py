@@ -13,6 +13,7 @@ from lidar3d.summary import (
     ErrorSummary,
     EvaluationSummary,
     InputStatistics,
+    OutputFile,
     RunCounts,
     RunSummary,
     StageMedians,
@@ -80,7 +81,12 @@ def example_summary(**changes) -> RunSummary:
         warnings=("scans 2-3: too few features, pose from the motion model",),
         pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
         input_stats=InputStatistics(
-            points_kept=2178288, nonfinite_dropped=3, below_min_range_dropped=0, messages_lost=0
+            points_kept=2178288,
+            nonfinite_dropped=3,
+            below_min_range_dropped=0,
+            absurd_coordinates_dropped=2,
+            outlier_times_dropped=1,
+            messages_lost=0,
         ),
         map_rebuild_s=3.5,
         evaluation=EvaluationSummary(
@@ -103,10 +109,13 @@ def example_summary(**changes) -> RunSummary:
         example_summary(evaluation=None, evaluation_error="evaluation against span.log failed: no overlap"),
         example_summary(input_stats=None, map_rebuild_s=None, evaluation=None, partial=True),
         example_summary(
+            outputs=(OutputFile("eval/report.json", 812, "0" * 64), OutputFile("map.pcd", 1_861_232, "ab" * 32, 155082))
+        ),
+        example_summary(
             evaluation=dataclasses.replace(example_summary().evaluation, ate=AteSummary(*[error_summary(None, 0)] * 4))
         ),
     ],
-    ids=["complete", "evaluation-error", "checkpoint", "no-associated-pose"],
+    ids=["complete", "evaluation-error", "checkpoint", "manifest", "no-associated-pose"],
 )
 def test_json_round_trip_gives_the_same_record_and_text(summary, tmp_path):
     text = summary.to_json()
@@ -143,7 +152,10 @@ def test_a_summary_written_by_run_bag_parses_and_is_rewritten_byte_for_byte(tmp_
     text = (out / "summary.json").read_text()
     summary = read_summary(out / "summary.json")
     assert summary == outcome.summary and summary.to_json() == text
-    assert list(json.loads(text)) == [*TOP_LEVEL_KEYS, "input_stats", "evaluation"]
+    assert list(json.loads(text)) == [*TOP_LEVEL_KEYS, "input_stats", "evaluation", "outputs"]
+    paths = [entry.path for entry in summary.outputs]
+    assert paths == sorted(paths) and {"config.toml", "eval/report.json", "map.pcd", "trajectory_tum.txt"} <= set(paths)
+    assert summary.output("trajectory_tum.txt").rows == summary.scans
     assert summary.scans == summary.counts.scans == len(outcome.result.trajectory) > 0 and summary.partial is False
     assert summary.evaluation is not None and summary.evaluation.report == str(out / "eval")
     report = json.loads((out / "eval" / "report.json").read_text())
@@ -191,12 +203,30 @@ def _broken(change) -> str:
         (lambda d: d["counts"].update(scans=-0.5), "'counts.scans' must be an integer, got -0.5"),
         (lambda d: d["input_stats"].pop("messages_lost"), "key 'input_stats.messages_lost' is missing"),
         (
+            lambda d: d["input_stats"].pop("outlier_times_dropped"),
+            "key 'input_stats.outlier_times_dropped' is missing",
+        ),
+        (
             lambda d: d["evaluation"]["ate"]["translation_3d_m"].update(rmse="x"),
             "'evaluation.ate.translation_3d_m.rmse' must be a number or null, got \"x\"",
         ),
         (lambda d: d["evaluation"].update(table=None), "'evaluation.table' must be a string, got null"),
         (lambda d: d.update(evaluation_error=3), "'evaluation_error' must be a string, got 3"),
         (lambda d: d.update(scan_count=80), "unknown key 'scan_count'"),
+        (lambda d: d.update(outputs=[]), "'outputs' must be an object, got \\[\\]"),
+        (lambda d: d.update(outputs={"map.pcd": {"size_bytes": 1}}), "key 'outputs.map.pcd.sha256' is missing"),
+        (
+            lambda d: d.update(outputs={"map.pcd": {"size_bytes": 1, "sha256": "ABC"}}),
+            "'outputs.map.pcd.sha256' must be 64 lower-case hex digits",
+        ),
+        (
+            lambda d: d.update(outputs={"../map.pcd": {"size_bytes": 1, "sha256": "0" * 64}}),
+            "output path '../map.pcd' is not a plain relative path inside the run folder",
+        ),
+        (
+            lambda d: d.update(outputs={"map.pcd": {"size_bytes": 1, "sha256": "0" * 64, "points": 3}}),
+            "unknown key 'outputs.map.pcd.points'",
+        ),
     ],
 )
 def test_a_malformed_summary_names_the_file_and_the_key(change, message):
@@ -217,3 +247,20 @@ def test_files_that_are_not_summaries(tmp_path):
     path.write_text("{}")
     with pytest.raises(Lidar3dError, match=r"summary\.json: key 'lidar3d_version' is missing$"):
         read_summary(path)
+
+
+def test_input_statistics_warn_about_damaged_points_only():
+    clean = InputStatistics(
+        points_kept=10,
+        nonfinite_dropped=4,
+        below_min_range_dropped=5,
+        absurd_coordinates_dropped=0,
+        outlier_times_dropped=0,
+        messages_lost=0,
+    )
+    assert clean.damage_warning() is None  # NaN for missing returns is what drivers write
+    damaged = dataclasses.replace(clean, absurd_coordinates_dropped=2, outlier_times_dropped=1)
+    assert damaged.damage_warning() == (
+        "input sanity: dropped 2 points with absurd coordinates and 1 with point times outside the sweep "
+        "(4 non-finite points also dropped); see input_stats in summary.json"
+    )

@@ -177,16 +177,38 @@ def _replace_prefix(value: Any, old: str, new: str) -> Any:
 
 
 def _relocate_json(staging: Path, final: Path) -> None:
-    """Point absolute paths inside the staging folder's JSON outputs at the final folder."""
-    from lidar3d.io.atomic import write_text_atomic
+    """Point absolute paths inside the staging folder's JSON outputs at the final folder
+    (republished as one set, so the summary's manifest describes the rewritten files)."""
+    from lidar3d.io.run_folder import SUMMARY_NAME
 
     old, new = str(staging), str(final)
+    rewritten = {}
     for path in sorted(staging.rglob("*.json")):
         text = path.read_text(encoding="utf-8")
-        if old not in text:
-            continue
-        data = json.loads(text)
-        write_text_atomic(path, json.dumps(_replace_prefix(data, old, new), indent=2) + "\n")
+        if old in text:
+            data = json.loads(text)
+            rewritten[path.relative_to(staging).as_posix()] = (
+                json.dumps(_replace_prefix(data, old, new), indent=2) + "\n"
+            )
+    if not rewritten:
+        return
+    summary = RunSummary.from_json(rewritten.pop(SUMMARY_NAME, "") or (staging / SUMMARY_NAME).read_text("utf-8"))
+    _republish(staging, summary, rewritten)
+
+
+def _republish(folder: Path, summary: RunSummary, texts: dict[str, str] | None = None) -> None:
+    """Publish ``summary`` with the files ``texts`` (relative path -> text) rewritten, the rest kept."""
+    from lidar3d.io.atomic import write_text_atomic
+    from lidar3d.io.run_folder import publish_set
+
+    texts = texts or {}
+
+    def write(staging: Path) -> None:
+        for path, text in texts.items():
+            write_text_atomic(staging / path, text)
+
+    keep = [entry.path for entry in summary.outputs if entry.path not in texts]
+    publish_set(folder, summary, write, keep=keep)
 
 
 def _worker_name() -> str:
@@ -260,8 +282,7 @@ def process_job(
             if summary is None:
                 raise
             note = f"evaluation against {job.span_log} failed: {err}"
-            summary = dataclasses.replace(summary, evaluation_error=str(err))
-            write_text_atomic(staging / "summary.json", summary.to_json())
+            _republish(staging, dataclasses.replace(summary, evaluation_error=str(err)))
         _relocate_json(staging, job.out_dir)
         record = {
             "fingerprint": job.fingerprint,

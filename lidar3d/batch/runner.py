@@ -34,11 +34,12 @@ from typing import Any, TextIO
 from lidar3d.batch.discovery import BagInput, discover_bags
 from lidar3d.batch.engines import Engine, run_local, run_ray
 from lidar3d.batch.fingerprint import bag_size_bytes, content_fingerprint, job_fingerprint
-from lidar3d.batch.jobs import BagJob, JobResult, JobStatus, read_job_record, staging_folders
+from lidar3d.batch.jobs import JOB_FILE, BagJob, JobResult, JobStatus, read_job_record, staging_folders
 from lidar3d.batch.progress import BatchProgress
 from lidar3d.batch.report import ReportPaths, bag_row, write_report
 from lidar3d.batch.span_match import SpanMatch, TimeRangeCache, match_span_logs, resolve_extrinsics
 from lidar3d.errors import ConfigError, OutputError, SummaryError
+from lidar3d.io.run_folder import RunFolderState, check_run_folder
 from lidar3d.summary import RunSummary, read_summary
 
 __all__ = ["BatchOutcome", "ProgressCallback", "default_workers", "run_batch"]
@@ -150,11 +151,13 @@ def _published_summary(folder: Path) -> RunSummary | None:
 
 
 def _up_to_date(job: BagJob) -> bool:
+    """Finished earlier with the same fingerprint, and the folder still holds the set its summary
+    describes (sizes checked: hashing every map of a big batch would take minutes)."""
     record = read_job_record(job.out_dir)
     if record is None or record.get("fingerprint") != job.fingerprint:
         return False
-    summary = _published_summary(job.out_dir)
-    return summary is not None and not summary.partial
+    check = check_run_folder(job.out_dir, verify_content=False, extra=(JOB_FILE,))
+    return check.state is RunFolderState.CONSISTENT and check.summary is not None and not check.summary.partial
 
 
 class _Collector:

@@ -61,9 +61,11 @@ def run(args: argparse.Namespace) -> int:
     from lidar3d.config import config_with, load_config
     from lidar3d.errors import ConfigError
     from lidar3d.export.span_report import format_span_table, write_span_report
+    from lidar3d.io.run_folder import check_run_output
     from lidar3d.metrics.span_eval import evaluate_span_files
 
     config = load_config(args.config)
+    check_run_output(args.trajectory)
     for flag, key, value in (("--time-offset", "time_offset_s", args.time_offset), ("--origin", "origin", args.origin)):
         if value is not None:
             try:

@@ -11,7 +11,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run SLAM on VLP-16 bag(s): trajectory of every scan and a dense map",
         description=(
             "Run LeGO-LOAM-style SLAM over one recording (several ROS1 split files read as one "
-            "stream). Writes trajectories (TUM, KITTI), map.pcd, summary.json and config.toml."
+            "stream). Writes trajectories (TUM, KITTI), map.pcd, summary.json and config.toml; a folder "
+            "holding an earlier run's outputs is refused unless --overwrite is given."
         ),
         epilog=(
             "examples:\n"
@@ -31,6 +32,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--no-loop", action="store_true", help="turn loop closure off")
     parser.add_argument("--span", metavar="LOG", help="NovAtel SPAN log: evaluate the trajectory against it")
     parser.add_argument("--extrinsics", metavar="FILE", help="lidar-to-IMU extrinsic for --span (TOML/YAML)")
+    parser.add_argument(
+        "--overwrite", action="store_true", help="replace the outputs of an earlier run in DIR (else refused)"
+    )
     parser.set_defaults(func=run)
 
 
@@ -69,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
             span_log=args.span,
             extrinsics=args.extrinsics,
             on_scan=progress.update,
+            overwrite=args.overwrite,
         )
     finally:
         progress.close()

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import logging
+import os
 import pkgutil
 import sys
 from collections.abc import Sequence
@@ -50,7 +51,8 @@ def _configure_logging(verbose: bool, quiet: bool) -> None:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Run the CLI in process; returns the exit code (0 ok, 1 known error, 130 interrupted)."""
+    """Run the CLI in process; returns the exit code (0 ok, 1 known error, 130 interrupted, 141 the
+    reader of stdout went away, as in ``lidar3d info BAG | head``)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command is None:
@@ -58,13 +60,28 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     _configure_logging(args.verbose, args.quiet)
     try:
-        return int(args.func(args) or 0)
+        code = int(args.func(args) or 0)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        return code
+    except BrokenPipeError:
+        _silence_stdout()
+        return 128 + 13  # as a process ended by SIGPIPE
     except Lidar3dError as err:
         print(f"lidar3d {args.command}: error: {err}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print(f"lidar3d {args.command}: interrupted; finished outputs are kept", file=sys.stderr)
         return 130
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null, so the interpreter's final flush of the closed pipe stays quiet."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, AttributeError):  # stdout without a file descriptor (in-process tests)
+        pass
 
 
 def entry_point() -> None:  # pragma: no cover - thin wrapper for the console script

@@ -105,7 +105,7 @@ def bag_info(
         names = {f.name for f in first_parts.fields}
         n_rings = model = None
         try:
-            scan, _stats = source.make_decoder().decode(first_parts)
+            scan, _stats, _counts = source.make_decoder().decode(first_parts)
         except PointCloudError as err:
             raise PointCloudError(f"{source.label}: first cloud on {source.topic}: {err}") from err
         if names & set(RING_FIELD_NAMES) and len(scan):

@@ -16,15 +16,20 @@ offsets, ``is_bigendian``, ``height``/``width`` and row padding in ``row_step``)
 * ``time`` float32, seconds relative to the stamp (velodyne_pointcloud);
 * ``t`` uint32 nanoseconds relative to the stamp (Ouster); any integer time field (``t``,
   ``time_stamp``, ``offset_time``, ``time``) is read as relative nanoseconds;
-* ``timestamp`` float64 absolute seconds (Hesai, RoboSense); any float time field whose values
-  exceed :data:`ABSOLUTE_TIME_THRESHOLD_S` is taken as absolute and made relative to the stamp;
+* ``timestamp`` float64 absolute seconds (Hesai, RoboSense); a float time field whose median
+  magnitude exceeds :data:`ABSOLUTE_TIME_THRESHOLD_S` is taken as absolute and made relative to
+  the stamp (the bulk of the points decides, so one damaged time cannot move the others);
 * no ring field: the ring is the beam of the sensor's elevation table nearest to each point's
   elevation angle (:meth:`lidar3d.sensors.SensorModel.ring_from_elevation`);
 * no time field: the time is derived from the azimuth as LeGO-LOAM does (see
   :func:`time_from_azimuth`).
 
-Points with a NaN/inf coordinate and points closer than ``min_range_m`` are dropped and counted
-in the returned :class:`DecodeStats`.
+Points closer than ``min_range_m`` are dropped and counted in the returned :class:`DecodeStats`.
+Decoding judges no point otherwise: non-finite or absurd coordinates and point times outside the
+sweep are left to the sanity stage (:func:`lidar3d.io.scan_sanity.sanitize_scan`), and the
+derived rings and times of the other points do not depend on them. The header is checked before
+the data is touched: shape, ``point_step``, ``row_step`` and field offsets against each other and
+against the data length, so a damaged header is a :class:`~lidar3d.errors.PointCloudError`.
 """
 
 from __future__ import annotations
@@ -37,12 +42,14 @@ from typing import Any
 import numpy as np
 
 from lidar3d.errors import PointCloudError
+from lidar3d.io.scan_sanity import plausible_coordinates
 from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, SensorModel
 
 __all__ = [
     "ABSOLUTE_TIME_THRESHOLD_S",
     "INTENSITY_FIELD_NAMES",
+    "MAX_POINT_STEP",
     "POINTCLOUD2_TYPE",
     "RING_FIELD_NAMES",
     "RING_ORDER_MIN_CORRELATION",
@@ -65,8 +72,10 @@ logger = logging.getLogger(__name__)
 
 #: The ROS message type (ROS2 spelling) of everything this module encodes and decodes.
 POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
-#: A float time field with values above this many seconds holds absolute times (epoch seconds).
+#: A float time field whose median magnitude is above this many seconds holds absolute times (epoch seconds).
 ABSOLUTE_TIME_THRESHOLD_S = 1.0e5
+#: The largest ``point_step`` (bytes) a cloud may declare: the largest record NumPy can describe.
+MAX_POINT_STEP = 2**31 - 1
 _START_TOLERANCE_RAD = 5.0e-4
 #: Rank correlation between ring values and their elevations below which rings are renumbered.
 RING_ORDER_MIN_CORRELATION = 0.9
@@ -152,12 +161,11 @@ class DecodeStats:
     """What decoding one cloud kept and dropped (all counts of points)."""
 
     n_input: int
-    n_nonfinite: int
     n_below_min_range: int
 
     @property
     def n_kept(self) -> int:
-        return self.n_input - self.n_nonfinite - self.n_below_min_range
+        return self.n_input - self.n_below_min_range
 
 
 def _velodyne_dtype() -> np.dtype:
@@ -278,43 +286,60 @@ def _structured_dtype(parts: PointCloud2Parts, wanted: dict[str, PointField]) ->
     return np.dtype({"names": names, "formats": formats, "offsets": offsets, "itemsize": parts.point_step})
 
 
-def _point_records(parts: PointCloud2Parts, dtype: np.dtype) -> np.ndarray:
-    """A structured (height*width,) view of ``data``; rows are de-padded when row_step is larger."""
-    height, width, step = parts.height, parts.width, parts.point_step
-    if height < 0 or width < 0 or (step <= 0 and height * width > 0):
-        raise PointCloudError(f"bad cloud shape: height {height}, width {width}, point_step {step}")
+def _data_bytes(parts: PointCloud2Parts) -> np.ndarray:
     data = np.asarray(parts.data)
     if data.dtype != np.uint8:
         data = data.view(np.uint8)
-    data = data.reshape(-1)
+    return data.reshape(-1)
+
+
+def _check_header(parts: PointCloud2Parts, n_bytes: int) -> None:
+    """Raise unless height, width, point_step and row_step agree with each other and with the
+    ``n_bytes`` of data (see :func:`_point_records` for the layouts accepted)."""
+    height, width, step, row_step = parts.height, parts.width, parts.point_step, parts.row_step
+    if height < 0 or width < 0 or step < 0 or row_step < 0 or (step == 0 and height * width > 0):
+        raise PointCloudError(
+            f"bad cloud shape: height {height}, width {width}, point_step {step}, row_step {row_step}"
+        )
+    if step > MAX_POINT_STEP:
+        raise PointCloudError(f"point_step {step} is larger than any point record ({MAX_POINT_STEP} bytes)")
     expected = height * width * step
-    row_step = parts.row_step if height > 0 else 0
-    if row_step == width * step or height <= 1:
-        # Dense rows (or a single row, where padding at its end is harmless): insist on the
-        # exact length width*height*point_step, allowing trailing row padding of one row.
-        if data.size != expected and not (height == 1 and data.size == row_step and row_step >= expected):
+    if height <= 1 or row_step == width * step:
+        if n_bytes != expected and not (height == 1 and n_bytes == row_step and row_step >= expected):
             raise PointCloudError(
-                f"data holds {data.size} bytes but width*height*point_step = {width}*{height}*{step} = {expected}"
+                f"data holds {n_bytes} bytes but width*height*point_step = {width}*{height}*{step} = {expected}"
             )
-        return np.frombuffer(data, dtype=dtype, count=height * width)
+        return
     if row_step < width * step:
         raise PointCloudError(f"row_step {row_step} is smaller than width*point_step = {width * step}")
-    if data.size != row_step * height:
+    if n_bytes != row_step * height:
         raise PointCloudError(
-            f"data holds {data.size} bytes but height*row_step = {height}*{row_step} = {row_step * height}"
+            f"data holds {n_bytes} bytes but height*row_step = {height}*{row_step} = {row_step * height}"
         )
-    rows = data.reshape(height, row_step)[:, : width * step]
+
+
+def _point_records(parts: PointCloud2Parts, data: np.ndarray, dtype: np.dtype) -> np.ndarray:
+    """A structured (height*width,) view of ``data`` (checked by :func:`_check_header`).
+
+    Dense rows, or a single row (where padding at its end is harmless), are viewed without a copy;
+    padded rows (``row_step`` > ``width * point_step``) are de-padded.
+    """
+    height, width, step = parts.height, parts.width, parts.point_step
+    if height <= 1 or parts.row_step == width * step:
+        return np.frombuffer(data, dtype=dtype, count=height * width)
+    rows = data.reshape(height, parts.row_step)[:, : width * step]
     return np.ascontiguousarray(rows).reshape(-1).view(dtype)
 
 
-def time_from_azimuth(points: np.ndarray, sweep_period_s: float) -> np.ndarray:
+def time_from_azimuth(points: np.ndarray, sweep_period_s: float, start_index: int = 0) -> np.ndarray:
     """Per-point time offsets (s) from the azimuth, for clouds without a time field.
 
     Follows LeGO-LOAM (``imageProjection.cpp`` ``findStartEndAngle`` and
     ``featureAssociation.cpp`` ``adjustDistortion``, commit 896a7a95): a Velodyne turns clockwise
-    seen from above, so the clockwise azimuth ``-atan2(y, x)`` grows with time. The first point's
-    azimuth marks the sweep start; a point's time is its clockwise angle past the start over a full
-    turn, times the sweep period: ``t = ((ori - ori_start) mod 2 pi) / (2 pi) * period``. The
+    seen from above, so the clockwise azimuth ``-atan2(y, x)`` grows with time. The azimuth of
+    point ``start_index`` (the first point, or the first with plausible coordinates) marks the sweep
+    start; a point's time is its clockwise angle past the start over a full turn, times the sweep
+    period: ``t = ((ori - ori_start) mod 2 pi) / (2 pi) * period``. The
     modulo replaces LeGO-LOAM's sequential ``halfPassed`` unwrapping, which needs points in firing
     order; it differs only for points that overlap the sweep start, which get times near 0 instead
     of near the period. Angles within :data:`_START_TOLERANCE_RAD` (0.03 deg, well under one
@@ -324,7 +349,7 @@ def time_from_azimuth(points: np.ndarray, sweep_period_s: float) -> np.ndarray:
     if points.shape[0] == 0:
         return np.zeros(0, dtype=np.float64)
     orientation = -np.arctan2(points[:, 1], points[:, 0])
-    turned = np.mod(orientation - orientation[0], 2.0 * np.pi)
+    turned = np.mod(orientation - orientation[start_index], 2.0 * np.pi)
     # Points a hair counter-clockwise of the first (same firing column, rounding) belong to the
     # start of the sweep, not its end.
     turned[turned > 2.0 * np.pi - _START_TOLERANCE_RAD] = 0.0
@@ -397,56 +422,80 @@ def decode_parts(
         field = _pick(by_name, names)
         if field is not None:
             wanted[role] = field
-    records = _point_records(parts, _structured_dtype(parts, wanted))
+    data = _data_bytes(parts)
+    _check_header(parts, data.size)
+    records = _point_records(parts, data, _structured_dtype(parts, wanted))
 
     n_input = records.shape[0]
-    points = np.empty((n_input, 3), dtype=np.float64)
-    points[:, 0] = records["x"]
-    points[:, 1] = records["y"]
-    points[:, 2] = records["z"]
-    finite = np.isfinite(points).all(axis=1)
-    range_sq = np.einsum("ij,ij->i", points, points, optimize=False)
-    near = finite & (range_sq < min_range_m * min_range_m)
-    keep = finite & ~near
-    n_nonfinite = int(n_input - np.count_nonzero(finite))
-    n_near = int(np.count_nonzero(near))
-    all_kept = n_nonfinite == 0 and n_near == 0
-    if not all_kept:
-        points = points[keep]
+    # Damaged points (signalling NaN, 1e300) make no warnings here: the sanity stage drops and counts them.
+    with np.errstate(over="ignore", invalid="ignore"):
+        points = np.empty((n_input, 3), dtype=np.float64)
+        points[:, 0] = records["x"]
+        points[:, 1] = records["y"]
+        points[:, 2] = records["z"]
+        range_sq = np.einsum("ij,ij->i", points, points, optimize=False)
+        near = range_sq < min_range_m * min_range_m
+        n_near = int(np.count_nonzero(near))
+        all_kept = n_near == 0
+        if not all_kept:
+            points = points[~near]
 
-    def column(role: str) -> np.ndarray:
-        values = records[role]
-        return values if all_kept else values[keep]
+        def column(role: str) -> np.ndarray:
+            values = records[role]
+            return values if all_kept else values[~near]
 
-    intensity = column("intensity") if "intensity" in wanted else np.zeros(points.shape[0], np.float32)
-    if "ring" in wanted:
-        ring = column("ring")
-        if ring_table is not None:
-            ring = ring_table[np.minimum(ring.astype(np.intp), ring_table.size - 1)]
-    else:
-        elevation = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
-        ring = sensor.ring_from_elevation(elevation)
-    if "time" in wanted:
-        raw = column("time")
-        if raw.dtype.kind == "f":
-            time_s = raw.astype(np.float64)
-            if time_s.size and np.nanmax(np.abs(time_s)) > ABSOLUTE_TIME_THRESHOLD_S:
-                sec, nanosec = divmod(parts.stamp_ns, 1_000_000_000)
-                time_s = (time_s - float(sec)) - nanosec * 1e-9
+        intensity = column("intensity") if "intensity" in wanted else np.zeros(points.shape[0], np.float32)
+        if intensity.dtype != np.float32:
+            intensity = intensity.astype(np.float32)
+        ring = _ring_values(column("ring"), ring_table) if "ring" in wanted else None
+        if ring is None:
+            elevation = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
+            ring = sensor.ring_from_elevation(elevation)
+        if "time" in wanted:
+            time_s = _relative_times(column("time"), parts.stamp_ns)
         else:
-            time_s = raw.astype(np.float64) * 1e-9
-    else:
-        time_s = time_from_azimuth(points, sensor.sweep_period_s)
+            plausible = plausible_coordinates(points, sensor)[1]
+            start = int(np.argmax(plausible)) if plausible.any() else 0
+            time_s = time_from_azimuth(points, sensor.sweep_period_s, start)
 
-    stats = DecodeStats(n_input=n_input, n_nonfinite=n_nonfinite, n_below_min_range=n_near)
+    stats = DecodeStats(n_input=n_input, n_below_min_range=n_near)
     if not all_kept:
         logger.debug(
-            "cloud at %d ns: dropped %d non-finite and %d points nearer than %.2f m of %d",
-            parts.stamp_ns,
-            n_nonfinite,
-            n_near,
-            min_range_m,
-            n_input,
+            "cloud at %d ns: dropped %d points nearer than %.2f m of %d", parts.stamp_ns, n_near, min_range_m, n_input
         )
     scan = Scan(stamp_ns=parts.stamp_ns, points=points, intensity=intensity, ring=ring, time_offset_s=time_s)
     return scan, stats
+
+
+def _ring_values(raw: np.ndarray, ring_table: np.ndarray | None) -> np.ndarray:
+    """Ring field values as uint16, renumbered through ``ring_table``; a float value that is no
+    ring number (NaN, negative, beyond uint16) becomes 65535, a ring no sensor has."""
+    if raw.dtype.kind == "f":
+        raw = np.where(np.isfinite(raw) & (raw >= 0) & (raw < 65536), raw, 65535).astype(np.uint16)
+    if ring_table is None:
+        return raw
+    return ring_table[np.minimum(raw.astype(np.intp), ring_table.size - 1)]
+
+
+def _relative_times(raw: np.ndarray, stamp_ns: int) -> np.ndarray:
+    """Time field values as float64 seconds relative to ``stamp_ns``.
+
+    Integer fields hold relative nanoseconds. Float fields hold relative seconds, or absolute
+    seconds when the median magnitude of their finite values exceeds
+    :data:`ABSOLUTE_TIME_THRESHOLD_S`: the bulk of the points decides the time base for the whole
+    cloud, and the few points that disagree with it end far outside the sweep, where the sanity
+    stage drops them.
+    """
+    if raw.dtype.kind != "f":
+        return raw.astype(np.float64) * 1e-9
+    time_s = raw.astype(np.float64)
+    magnitude = np.abs(time_s)
+    # The largest finite magnitude first (NaN ignored): the median is needed only when some time is large.
+    if (
+        magnitude.size
+        and np.fmax.reduce(magnitude) > ABSOLUTE_TIME_THRESHOLD_S
+        and np.median(magnitude[np.isfinite(magnitude)]) > ABSOLUTE_TIME_THRESHOLD_S
+    ):
+        sec, nanosec = divmod(stamp_ns, 1_000_000_000)
+        time_s = (time_s - float(sec)) - nanosec * 1e-9
+    return time_s

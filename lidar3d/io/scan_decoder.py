@@ -8,8 +8,10 @@ rings and per-point times come out the same whichever command reads it.
   through ``rosbags`` typestores (ROS1 Noetic, ROS2 Humble; PointCloud2 is the same in every
   distribution).
 * :class:`ScanDecoder`: parts -> :class:`~lidar3d.records.Scan` with
-  :func:`lidar3d.io.pointcloud2.decode_parts`, renumbering a ring field that does not count up
-  from the lowest beam (judged once per stream, on its first non-empty cloud).
+  :func:`lidar3d.io.pointcloud2.decode_parts`, then the sanity stage
+  (:func:`lidar3d.io.scan_sanity.sanitize_scan`: non-finite points, absurd coordinates and outlier
+  point times dropped and counted), renumbering a ring field that does not count up from the
+  lowest beam (judged once per stream, on its first non-empty sane cloud).
 * :func:`header_stamp_ns`: the header stamp of a serialised message, without deserialising it.
 """
 
@@ -33,6 +35,7 @@ from lidar3d.io.pointcloud2 import (
     parts_from_message,
     ring_table_from_elevation,
 )
+from lidar3d.io.scan_sanity import SanityCounts, sanitize_scan
 from lidar3d.records import Scan
 from lidar3d.sensors import SensorModel
 
@@ -90,6 +93,7 @@ class ScanDecoder:
         sensor: elevation table and sweep period, for ring renumbering and for clouds without
             ring or time fields.
         min_range_m: points nearer than this are dropped (counted in the returned stats).
+            The sensor's maximum range and sweep period set the sanity limits.
         label, topic: how the log line about renumbering names the input and topic.
     """
 
@@ -105,13 +109,14 @@ class ScanDecoder:
         """Whether decoding ``parts`` may settle the ring numbering (not settled yet, and a ring field)."""
         return not self._rings_judged and any(f.name in RING_FIELD_NAMES for f in parts.fields)
 
-    def decode(self, parts: PointCloud2Parts) -> tuple[Scan, DecodeStats]:
-        """The scan of the next cloud of the stream, and what decoding dropped from it.
+    def decode(self, parts: PointCloud2Parts) -> tuple[Scan, DecodeStats, SanityCounts]:
+        """The sane scan of the next cloud of the stream, what decoding dropped from it and what
+        the sanity stage dropped.
 
         Raises:
             PointCloudError: the cloud cannot be decoded (see :func:`~lidar3d.io.pointcloud2.decode_parts`).
         """
-        scan, stats = self._decode(parts)
+        scan, stats, counts = self._decode(parts)
         if len(scan) and self.may_judge_rings(parts):
             self._rings_judged = True
             self._ring_table = ring_table_from_elevation(scan.ring, scan.points, self.sensor)
@@ -123,8 +128,24 @@ class ScanDecoder:
                     self.topic,
                     self.sensor.name,
                 )
-                scan, stats = self._decode(parts)
-        return scan, stats
+                scan, stats, counts = self._decode(parts)
+        return scan, stats, counts
 
-    def _decode(self, parts: PointCloud2Parts) -> tuple[Scan, DecodeStats]:
-        return decode_parts(parts, sensor=self.sensor, min_range_m=self.min_range_m, ring_table=self._ring_table)
+    def _decode(self, parts: PointCloud2Parts) -> tuple[Scan, DecodeStats, SanityCounts]:
+        decoded, stats = decode_parts(
+            parts, sensor=self.sensor, min_range_m=self.min_range_m, ring_table=self._ring_table
+        )
+        scan, counts = sanitize_scan(decoded, self.sensor)
+        if counts.n_dropped:
+            logger.debug(
+                "%s: %s at stamp %d ns: dropped %d non-finite points, %d with absurd coordinates, "
+                "%d with outlier times of %d",
+                self.label,
+                self.topic,
+                parts.stamp_ns,
+                counts.n_nonfinite,
+                counts.n_absurd_coordinates,
+                counts.n_outlier_times,
+                stats.n_input,
+            )
+        return scan, stats, counts

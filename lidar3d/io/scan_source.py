@@ -30,6 +30,7 @@ from lidar3d.io.bag_inputs import (
 )
 from lidar3d.io.pointcloud2 import POINTCLOUD2_TYPE, DecodeStats, PointCloud2Parts
 from lidar3d.io.scan_decoder import ScanDecoder, deserialize_cloud
+from lidar3d.io.scan_sanity import SanityCounts
 from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, SensorModel
 
@@ -40,22 +41,31 @@ logger = logging.getLogger(__name__)
 
 @dataclass(frozen=True, slots=True)
 class ReadStats:
-    """Totals over the scans read so far (counts of scans, points and messages)."""
+    """Totals over the scans read so far (counts of scans, points and messages).
+
+    ``n_points_kept`` entered the front end; the drops are by decoding (``n_below_min_range``) and
+    by the sanity stage (``n_nonfinite``, ``n_absurd_coordinates``, ``n_outlier_times``: see
+    :mod:`lidar3d.io.scan_sanity`).
+    """
 
     n_scans: int = 0
     n_points_in: int = 0
     n_points_kept: int = 0
     n_nonfinite: int = 0
     n_below_min_range: int = 0
+    n_absurd_coordinates: int = 0
+    n_outlier_times: int = 0
     n_lost_messages: int = 0
 
-    def add(self, stats: DecodeStats) -> ReadStats:
+    def add(self, stats: DecodeStats, counts: SanityCounts) -> ReadStats:
         return ReadStats(
             n_scans=self.n_scans + 1,
             n_points_in=self.n_points_in + stats.n_input,
-            n_points_kept=self.n_points_kept + stats.n_kept,
-            n_nonfinite=self.n_nonfinite + stats.n_nonfinite,
+            n_points_kept=self.n_points_kept + stats.n_kept - counts.n_dropped,
+            n_nonfinite=self.n_nonfinite + counts.n_nonfinite,
             n_below_min_range=self.n_below_min_range + stats.n_below_min_range,
+            n_absurd_coordinates=self.n_absurd_coordinates + counts.n_absurd_coordinates,
+            n_outlier_times=self.n_outlier_times + counts.n_outlier_times,
             n_lost_messages=self.n_lost_messages,
         )
 
@@ -111,12 +121,14 @@ class ScanSource:
         paths: a bag path or several (ROS1 split files, or ROS2 folders); read as one stream.
         topic: the PointCloud2 topic; None or "" picks the only one.
         sensor: for ring renumbering and clouds without ring or time fields (see :class:`ScanDecoder`).
-        min_range_m: points nearer than this are dropped (counted in :attr:`stats`).
+        min_range_m: points nearer than this are dropped (counted in :attr:`stats`, as are the points
+            the sanity stage drops: :mod:`lidar3d.io.scan_sanity`).
 
     Raises (from ``open``/``__enter__``):
         BagError: missing path, not a bag, empty bag, no/ambiguous/unknown lidar topic.
     Iterating raises:
-        PointCloudError: a cloud that cannot be decoded (message names the bag and stamp).
+        PointCloudError: a cloud that cannot be decoded (the message names the bag, topic, message index
+            and stamp).
     """
 
     def __init__(
@@ -178,13 +190,16 @@ class ScanSource:
             opened.close()
         if self._stats.n_scans:
             logger.info(
-                "read %d scans from %s: %d points kept, %d non-finite and %d nearer than %.2f m dropped",
+                "read %d scans from %s: %d points kept; dropped %d nearer than %.2f m, %d non-finite, "
+                "%d with absurd coordinates, %d with outlier times",
                 self._stats.n_scans,
                 self.label,
                 self._stats.n_points_kept,
-                self._stats.n_nonfinite,
                 self._stats.n_below_min_range,
                 self.min_range_m,
+                self._stats.n_nonfinite,
+                self._stats.n_absurd_coordinates,
+                self._stats.n_outlier_times,
             )
 
     def __enter__(self) -> ScanSource:
@@ -274,11 +289,13 @@ class ScanSource:
             if index < start and not decoder.may_judge_rings(parts):
                 continue
             try:
-                scan, stats = decoder.decode(parts)
+                scan, stats, counts = decoder.decode(parts)
             except PointCloudError as err:
-                raise PointCloudError(f"{self.label}: {self.topic} at stamp {parts.stamp_ns} ns: {err}") from err
+                raise PointCloudError(
+                    f"{self.label}: {self.topic} message {index} at stamp {parts.stamp_ns} ns: {err}"
+                ) from err
             if index >= start:
-                self._stats = self._stats.add(stats)
+                self._stats = self._stats.add(stats, counts)
                 yield index, scan
 
     def __iter__(self) -> Iterator[Scan]:
