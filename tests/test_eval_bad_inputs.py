@@ -187,7 +187,9 @@ def test_bad_origin_option_is_one_line(tmp_path, drive, capsys):
     args = ["eval", str(traj), "--span", str(log), "--origin", "48.0", "200.0", "500.0", "--out", str(tmp_path / "e")]
     code, _out, err = _run(capsys, args)
     assert code == 1
-    assert err == "lidar3d eval: error: --origin: ENU origin: longitude_deg 200.0 outside [-180, 180]\n"
+    assert err == (
+        "lidar3d eval: error: --origin: config gnss.origin[1] (longitude_deg): 200.0 is out of range [-180, 180] deg\n"
+    )
 
 
 # --- defect 10: SE(3) alignment on a short, nearly straight clip --------------------------------
