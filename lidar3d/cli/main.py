@@ -42,7 +42,7 @@ def _configure_logging(verbose: bool, quiet: bool) -> None:
     from lidar3d.cli.progress import ProgressSafeHandler
 
     level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
-    handler = ProgressSafeHandler(sys.stderr)
+    handler = ProgressSafeHandler()
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
     root = logging.getLogger("lidar3d")
     root.handlers[:] = [handler]

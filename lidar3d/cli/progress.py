@@ -60,14 +60,18 @@ class ScanProgress:
         self._bar.close()
 
 
-class ProgressSafeHandler(logging.StreamHandler):
-    """A stream handler that writes each record through ``tqdm.write``, so it goes on a line of its own
-    above any progress bar drawn on the same terminal, and the bar is redrawn below it."""
+class ProgressSafeHandler(logging.Handler):
+    """A handler that writes each record to the current ``sys.stderr`` through ``tqdm.write``, so it
+    goes on a line of its own above any progress bar drawn on the same terminal, and the bar is
+    redrawn below it. The stream is looked up per record, not kept: a program (or a test) that
+    replaces ``sys.stderr`` after the CLI set up logging still gets the records, and a closed
+    former stream is never written to."""
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
-            tqdm.write(self.format(record), file=self.stream)
-            self.flush()
+            stream = sys.stderr
+            tqdm.write(self.format(record), file=stream)
+            stream.flush()
         except RecursionError:
             raise
         except Exception:
