@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import dataclasses
-import logging
 
 import pytest
 from test_io_bags import STORAGES, _drop_index, _ros1_message_positions, bag_path, make_scans, write_topics_bag
@@ -14,15 +13,6 @@ from lidar3d.io.bag_info import bag_info, format_bag_info
 from lidar3d.io.bag_writer import write_cloud_bag, write_scan_bag
 from lidar3d.io.pointcloud2 import PointField, encode_scan
 from lidar3d.sensors import HDL32E, VLP32C
-
-
-@pytest.fixture(autouse=True)
-def _restore_logging():
-    """main() installs a stderr handler on the 'lidar3d' logger; put the logger back afterwards."""
-    logger = logging.getLogger("lidar3d")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
 
 
 @pytest.mark.parametrize("storage", STORAGES)

@@ -169,16 +169,9 @@ def test_vlp32c_elevation_table_fits_the_real_sensor():
 
 
 def test_cli_info_on_a_real_packet_bag_is_one_line(capsys):
-    import logging
-
     from lidar3d.cli.main import main
 
-    logger = logging.getLogger("lidar3d")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    try:
-        assert main(["info", str(VLP16_BAG)]) == 1
-    finally:
-        logger.handlers[:], logger.level, logger.propagate = saved
+    assert main(["info", str(VLP16_BAG)]) == 1
     assert capsys.readouterr().err.splitlines() == [
         f"lidar3d info: error: {VLP16_BAG}: no sensor_msgs/msg/PointCloud2 topic; "
         "topics: /velodyne_packets (velodyne_msgs/msg/VelodyneScan, 4)"

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import logging
 
 import numpy as np
 import pytest
@@ -154,7 +153,6 @@ def test_point_step_2_31_in_a_bag_is_one_line_naming_file_topic_and_message(tmp_
     clouds[0] = dataclasses.replace(clouds[0], point_step=2**31)
     bag = tmp_path / "bad.bag"
     write_cloud_bag(bag, clouds)
-    capsys.readouterr()  # what writing the bag logged (a CLI test before may have set up logging)
     assert main(["run", str(bag), "--out", str(tmp_path / "out")]) == 1
     assert capsys.readouterr().err.splitlines() == [
         f"lidar3d run: error: {bag}: /velodyne_points message 0 at stamp {STAMP_NS} ns: "
@@ -210,14 +208,6 @@ def test_a_scan_with_nothing_sane_is_an_empty_scan():
 
 
 @pytest.fixture(scope="module")
-def _restore_logging():
-    logger = logging.getLogger("lidar3d")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
-
-
-@pytest.fixture(scope="module")
 def clean_scans(tmp_path_factory):
     sim = pytest.importorskip("lidar3d.sim")
     folder = sim.simulate("loop", tmp_path_factory.mktemp("sim") / "loop", seed=0, duration_s=0.6)
@@ -255,7 +245,6 @@ def test_a_damaged_sqlite_bag_reads_with_the_damage_dropped_and_counted(clean_sc
         np.testing.assert_array_equal(scans[index].points, clean_scans[index].points)
 
 
-@pytest.mark.usefixtures("_restore_logging")
 def test_run_on_a_damaged_bag_warns_and_counts_in_the_summary(clean_scans, tmp_path, capsys):
     bag = tmp_path / "damaged.bag"
     write_scan_bag(bag, damaged_copy(clean_scans))

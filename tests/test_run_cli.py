@@ -39,15 +39,6 @@ OUTPUT_FILES = (
 )
 
 
-@pytest.fixture(scope="module", autouse=True)
-def _restore_logging():
-    """main() installs a stderr handler on the 'lidar3d' logger; put the logger back afterwards."""
-    logger = logging.getLogger("lidar3d")
-    saved = (logger.handlers[:], logger.level, logger.propagate)
-    yield
-    logger.handlers[:], logger.level, logger.propagate = saved
-
-
 @pytest.fixture(scope="module")
 def simulated(tmp_path_factory):
     return sim.simulate("loop", tmp_path_factory.mktemp("sim") / "loop", seed=0, duration_s=3.0)
