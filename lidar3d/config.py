@@ -37,6 +37,7 @@ __all__ = [
     "ListRange",
     "LoopConfig",
     "MappingConfig",
+    "MotionConfig",
     "OdometryConfig",
     "Range",
     "SegmentationConfig",
@@ -312,13 +313,8 @@ class MappingConfig:
     plane_neighbours: int = _key(10, _closed(3, 100), "neighbours of a submap plane fit")
     plane_max_distance_m: float = _key(1.4, _positive(50.0, "m"), "farthest neighbour of a plane fit")
     level_normal_z: float = _key(0.9, _FRACTION, "planes this level inform only z, roll, pitch (0: off)")
-    hold_yaw_min_degenerate: int = _key(
-        2, _closed(0, 6), "this many degenerate directions: yaw from the motion model (0: off)"
-    )
-    # Below this yaw rate the vehicle drives straight: degenerate directions take the motion
-    # model's prediction and yaw may be held (above it the prediction lags the turn).
-    straight_max_yaw_rate_deg_s: float = _key(
-        5.0, _closed(0.0, 3600.0, "deg/s"), "below this yaw rate the motion counts as straight"
+    min_residual_sigma_m: float = _key(
+        0.01, _positive(1.0, "m"), "the rows' residual sigma scaling their information is at least this"
     )
     robust_scale_m: float = _key(
         0.05, _closed(0.0, 10.0, "m"), "Geman-McClure scale; 0 selects LeGO-LOAM's 1 - 0.9|r| weight"
@@ -435,6 +431,26 @@ class LoopConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class MotionConfig:
+    """The vehicle motion prior of scan-to-submap registration (:mod:`lidar3d.mapping.motion_model`).
+
+    The prediction carries the last twist forward; these bound how far the true motion may
+    depart from it over one scan interval dt: a translation sigma of ``accel * dt^2`` along each
+    body axis and a rotation sigma of ``angular_accel * dt^2`` about each. Sideways and vertical
+    apply once the motion has shown it is a vehicle's (driving along one body axis); until then
+    every translation axis takes the forward value.
+    """
+
+    forward_accel_mps2: float = _key(2.0, _positive(100.0, "m/s^2"), "speed change along the direction of travel")
+    lateral_accel_mps2: float = _key(0.5, _positive(100.0, "m/s^2"), "sideways velocity change (non-holonomic)")
+    vertical_accel_mps2: float = _key(1.0, _positive(100.0, "m/s^2"), "vertical velocity change (suspension)")
+    yaw_accel_rad_s2: float = _key(2.0, _positive(1000.0, "rad/s^2"), "yaw rate change (steering into a turn)")
+    tilt_accel_rad_s2: float = _key(0.5, _positive(1000.0, "rad/s^2"), "roll and pitch rate change (vibration)")
+    min_sigma_m: float = _key(0.002, _positive(1.0, "m"), "translation sigma of one step is at least this")
+    min_sigma_deg: float = _key(0.02, _positive(10.0, "deg"), "rotation sigma of one step is at least this")
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     """The whole configuration."""
 
@@ -444,6 +460,7 @@ class Config:
     features: FeatureConfig = field(default_factory=FeatureConfig)
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
+    motion: MotionConfig = field(default_factory=MotionConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
 

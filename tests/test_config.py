@@ -247,8 +247,8 @@ def test_legitimate_extremes_are_accepted(tmp_path):
     text = (
         "[sensor]\nmax_range_override_m = 1000\nmin_range_m = 0.3\nn_columns_override = 4096\n"
         "rotation_override_hz = 20\nelevation_override_deg = [-22.5, -7.5, 7.5, 22.5]\nmount_roll_deg = 180\n"
-        "[mapping]\nstraight_max_yaw_rate_deg_s = 0\nkeyframe_distance_m = 0\nsubmap_radius_m = 500\n"
-        "map_voxel_m = 5\nrobust_scale_m = 0\nlevel_normal_z = 0\nhold_yaw_min_degenerate = 0\n"
+        "[mapping]\nkeyframe_distance_m = 0\nsubmap_radius_m = 500\n"
+        "map_voxel_m = 5\nrobust_scale_m = 0\nlevel_normal_z = 0\n"
         "[loop]\nsearch_radius_m = 50\nmin_time_gap_s = 3600\nicp_max_correspondence_m = [2.0]\n"
         "[gnss]\ntime_offset_s = -1.7e9\norigin = [-33.9, 151.2, -20]\nrpe_distances_m = []\n"
     )

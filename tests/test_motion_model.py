@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from lidar3d.mapping.motion_model import MotionModel
-from lidar3d.mapping.registration import PlaneMap, solve_pose
+from lidar3d.config import MotionConfig
+from lidar3d.mapping.registration import PlaneMap, PosePrior, observed_share, solve_pose
 from lidar3d.mapping.se3 import pose_from_xyz_rpy, xyz_rpy_from_pose
 
 # A sensor mounted with its x axis 30 degrees to the left of the direction of travel: the
@@ -101,7 +102,7 @@ def _solve(points, T_init, **kw):
     return solve_pose(
         T_init,
         points,
-        target.rows,
+        lambda q, reach: target.rows(q, reach),
         max_iterations=10,
         min_rows=50,
         degeneracy_threshold=100.0,
@@ -110,36 +111,49 @@ def _solve(points, T_init, **kw):
     )
 
 
-def test_degenerate_directions_take_the_prior_instead_of_the_guess():
+def _prior(x, sigma_m=0.02, sigma_deg=0.5):
+    information = np.diag(np.r_[np.full(3, sigma_m**-2.0), np.full(3, np.radians(sigma_deg) ** -2.0)])
+    return PosePrior(pose_from_xyz_rpy(np.asarray(x, dtype=float)), information)
+
+
+def test_unobserved_directions_take_the_prior_observed_ones_the_data():
     points = _ground_and_wall()
     T_init = pose_from_xyz_rpy(np.array([0.05, 0.8, 0.03, 0.0, 0.0, 0.0]))  # 0.8 m sideways
-    T_prior = pose_from_xyz_rpy(np.array([0.0, 0.1, 0.0, 0.0, 0.0, 0.0]))
     loam = _solve(points, T_init)
     assert loam.degenerate_axes >= 1
     assert xyz_rpy_from_pose(loam.T_target_source)[1] == pytest.approx(0.8, abs=0.02)  # LOAM keeps the guess
-    with_prior = _solve(points, T_init, T_prior=T_prior)
+    # The prior is 4 cm off in x, where the wall is seen: the data wins there.
+    with_prior = _solve(points, T_init, prior=_prior([0.04, 0.1, 0.0, 0.0, 0.0, 0.0]))
     x = xyz_rpy_from_pose(with_prior.T_target_source)
-    assert x[1] == pytest.approx(0.1, abs=0.02)  # the prior's lateral position
-    assert abs(x[0]) < 0.01 and abs(x[2]) < 0.01  # observed directions still solved from data
+    assert x[1] == pytest.approx(0.1, abs=0.005)  # the prior's lateral position
+    assert abs(x[0]) < 0.005 and abs(x[2]) < 0.005  # observed directions solved from data
+    share = observed_share(with_prior.information, _prior(np.zeros(6)).information)
+    assert share[0] > 0.95 and share[2] > 0.95 and share[1] < 0.05
 
 
-def test_yaw_is_held_at_the_prior_when_the_scene_is_badly_degenerate():
-    """Ground plus one narrow wall patch (a pole seen on open land): lateral position and the
-    rotation about the patch are both degenerate; the one observed direction mixes x and yaw."""
-    rng = np.random.default_rng(7)
+def test_a_turn_the_scan_sees_is_kept_against_a_prior_that_drives_straight():
+    """Walls all round: a 3 degree yaw the prior does not expect (sigma 0.5 deg) is kept."""
+    rng = np.random.default_rng(8)
     g = rng.uniform(-15, 15, size=(4000, 2))
-    ground = np.c_[g, np.full(len(g), -1.8)]
-    p = rng.uniform([4.25, -1.5], [5.75, 8.5], size=(800, 2))
-    patch = np.c_[np.full(len(p), 12.0), p]
-    points = np.concatenate([ground, patch])
-    T_init = pose_from_xyz_rpy(np.array([0.3, 0.0, 0.0, 0.0, 0.0, np.radians(4.0)]))
-    T_prior = pose_from_xyz_rpy(np.array([0.0, 0.0, 0.0, 0.0, 0.0, np.radians(1.0)]))
-    free = _solve(points, T_init, T_prior=T_prior)
-    held = _solve(points, T_init, T_prior=T_prior, hold_yaw_min_degenerate=2)
-    assert free.degenerate_axes == held.degenerate_axes == 2
-    assert abs(np.degrees(xyz_rpy_from_pose(free.T_target_source)[5]) - 1.0) > 0.2
-    x = xyz_rpy_from_pose(held.T_target_source)
-    assert np.degrees(x[5]) == pytest.approx(1.0, abs=1e-9)
-    # The patch is then explained by translation: its points stay on the plane x = 12.
-    moved = patch @ held.T_target_source[:3, :3].T + held.T_target_source[:3, 3]
-    assert np.abs(moved[:, 0] - 12.0).mean() < 0.01
+    walls = [np.c_[np.full(1500, 12.0), rng.uniform([-10, -1.5], [10, 6], size=(1500, 2))]]
+    walls.append(np.c_[rng.uniform(-10, 10, 1500), np.full(1500, 9.0), rng.uniform(-1.5, 6, 1500)])
+    points = np.concatenate([np.c_[g, np.full(len(g), -1.8)], *walls])
+    truth = pose_from_xyz_rpy(np.array([0.0, 0.0, 0.0, 0.0, 0.0, np.radians(3.0)]))
+    source = (points - truth[:3, 3]) @ truth[:3, :3]  # the points as the turned sensor sees them
+    target = PlaneMap(points, k=10, max_sq_dist=2.0)
+    result = solve_pose(
+        np.eye(4), source, target.rows, max_iterations=20, min_rows=50, level_normal_z=0.9, prior=_prior(np.zeros(6))
+    )
+    assert np.degrees(xyz_rpy_from_pose(result.T_target_source)[5]) == pytest.approx(3.0, abs=0.05)
+
+
+def test_vehicle_prior_is_tight_sideways_and_loose_along_travel():
+    model = MotionModel()
+    _drive(model, 30, np.random.default_rng(2), lateral_noise=0.0)
+    prior = model.prior(np.eye(4), 0.1, MotionConfig())
+    covariance = np.linalg.inv(prior.information[:3, :3])
+    along = FORWARD @ covariance @ FORWARD
+    side = np.array([-FORWARD[1], FORWARD[0], 0.0])
+    assert np.sqrt(along) == pytest.approx(MotionConfig().forward_accel_mps2 * 0.01, rel=1e-4)
+    assert np.sqrt(side @ covariance @ side) == pytest.approx(MotionConfig().lateral_accel_mps2 * 0.01, rel=1e-4)
+    np.testing.assert_allclose(prior.T_target_source[:3, 3], 0.1 * model.vehicle_twist()[:3], atol=1e-3)

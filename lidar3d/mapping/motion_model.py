@@ -1,4 +1,5 @@
-"""Constant-velocity motion model with a learned direction of travel (for degenerate scenes).
+"""Vehicle motion model: the prediction of the next pose, its uncertainty, and the learned
+direction of travel.
 
 The pipeline carries the body-frame twist of the last scan forward (constant velocity). Where a
 scan constrains some directions poorly (open land: nothing but ground and a distant pole), the
@@ -13,7 +14,13 @@ registration was well constrained, as the mean direction of their velocity, and 
 the motion has shown it is vehicle-like (consistently along one axis). A handheld or drone
 recording never passes that test and keeps the plain constant-velocity prediction.
 
-While the scene cannot tell the heading (the registration holds yaw at the prediction), the
+Registration fuses the scan with this prediction as a Gaussian prior (:meth:`MotionModel.prior`):
+its mean carries the twist forward, its covariance is what bounded accelerations allow over one
+scan interval (a car cannot change its speed by more than a few m/s^2, cannot slide sideways,
+cannot change its yaw rate instantly), so a direction the scan observes is taken from the scan
+and one it does not is taken from the vehicle model, in proportion to their information.
+
+While the scene cannot tell the heading (the prior carries most of the yaw information), the
 carried yaw rate decays towards zero: a residual rate of a tenth of a degree per second, held
 over a 30 s stretch of open road, would otherwise bend a straight road into a curve.
 
@@ -30,6 +37,10 @@ predicted velocity, which the registration absorbs.
 from __future__ import annotations
 
 import numpy as np
+
+from lidar3d.config import MotionConfig
+from lidar3d.mapping.registration import PosePrior
+from lidar3d.mapping.se3 import exp_se3
 
 __all__ = ["MotionModel"]
 
@@ -74,7 +85,8 @@ class MotionModel:
         """Take the twist (v m/s, w rad/s, body frame) estimated for the latest scan.
 
         ``well_constrained``: the registration had no degenerate direction (only such scans
-        teach the direction of travel). ``heading_observed``: False when yaw was held.
+        teach the direction of travel). ``heading_observed``: False when the yaw came mostly
+        from the prior rather than the scan.
         """
         self.twist = np.asarray(twist, dtype=float).copy()
         self.last_well_constrained = bool(well_constrained)
@@ -123,6 +135,38 @@ class MotionModel:
         """The carried twist with its velocity projected onto the direction of travel (no
         sideways or vertical slip); the plain twist while that direction is not established."""
         return self._on_axis(self.twist)
+
+    def prior(self, T_world_previous: np.ndarray, dt_s: float, config: MotionConfig) -> PosePrior:
+        """The pose ``dt_s`` after ``T_world_previous`` (4,4) under :meth:`vehicle_twist`, with the
+        information its bounded accelerations allow (see :class:`~lidar3d.config.MotionConfig`)."""
+        T_mean = T_world_previous @ exp_se3(self.vehicle_twist() * dt_s)
+        dt2 = dt_s * dt_s
+        forward = max(config.forward_accel_mps2 * dt2, config.min_sigma_m)
+        axis = self.forward_axis
+        if axis is None:
+            basis = np.eye(3)
+            sigma_t = np.full(3, forward)
+        else:
+            lateral = np.cross([0.0, 0.0, 1.0], axis)
+            if np.linalg.norm(lateral) < 1e-6:  # travelling along the sensor's z: any perpendicular
+                lateral = np.cross([1.0, 0.0, 0.0], axis)
+            lateral /= np.linalg.norm(lateral)
+            basis = np.column_stack([axis, lateral, np.cross(axis, lateral)])
+            sigma_t = np.array(
+                [
+                    forward,
+                    max(config.lateral_accel_mps2 * dt2, config.min_sigma_m),
+                    max(config.vertical_accel_mps2 * dt2, config.min_sigma_m),
+                ]
+            )
+        axes_world = T_mean[:3, :3] @ basis
+        information = np.zeros((6, 6))
+        information[:3, :3] = axes_world @ np.diag(sigma_t**-2.0) @ axes_world.T
+        min_rad = np.radians(config.min_sigma_deg)
+        tilt = max(config.tilt_accel_rad_s2 * dt2, min_rad)
+        yaw = max(config.yaw_accel_rad_s2 * dt2, min_rad)
+        information[3:, 3:] = np.diag(np.array([tilt, tilt, yaw]) ** -2.0)
+        return PosePrior(T_mean, information)
 
     def _on_axis(self, twist: np.ndarray) -> np.ndarray:
         axis = self.forward_axis

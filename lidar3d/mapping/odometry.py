@@ -104,11 +104,13 @@ class ScanToScanOdometry:
             converge_rotation_deg=0.1,
             converge_translation_m=0.001,
         )
-        planar = solve(T_guess, features.flat.points, lambda q: planes.match_planes(q, radius), free_axes=PLANAR_AXES)
+        planar = solve(
+            T_guess, features.flat.points, lambda q, _reach: planes.match_planes(q, radius), free_axes=PLANAR_AXES
+        )
         edge = solve(
             planar.T_target_source,
             features.sharp.points,
-            lambda q: edges.match_lines(q, radius),
+            lambda q, _reach: edges.match_lines(q, radius),
             free_axes=EDGE_AXES,
         )
         used_model = planar.iterations == 0 and edge.iterations == 0

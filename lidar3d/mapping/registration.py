@@ -10,14 +10,21 @@ ground, then x/y/yaw from edges).
 
 The solver is Gauss-Newton with either LOAM's robust row weights (s = 1 - 0.9 |r|, rows with
 s <= 0.1 dropped; LeGO-LOAM mapOptmization.cpp:1160, 1214) or a Geman-McClure kernel (as KISS-ICP
-uses), and LOAM's degeneracy handling (Zhang et al.,
-"On degeneracy of optimization-based state estimation problems", ICRA 2016): on the first
-iteration, directions of J^T J with eigenvalue below a threshold are projected out of every
-update.
+uses). Directions the rows leave unobserved are handled in one of two ways:
+
+* without a prior, LOAM's solution remapping (Zhang et al., "On degeneracy of optimization-based
+  state estimation problems", ICRA 2016): on the first iteration, directions of J^T J with
+  eigenvalue below a threshold are projected out of every update, so they keep the initial guess;
+* with a Gaussian :class:`PosePrior` (a motion model's prediction and its information), the
+  maximum a posteriori pose: the rows' information ``J^T W J / sigma^2`` (``sigma^2`` the weighted
+  residual variance of the current iteration) is added to the prior's, so each direction takes
+  the data where the data is more certain than the prior and the prior where it is not, with no
+  threshold and no switch between the two.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -31,8 +38,10 @@ __all__ = [
     "LineMap",
     "MatchRows",
     "PlaneMap",
+    "PosePrior",
     "SolveResult",
     "line_rows_from_directions",
+    "observed_share",
     "plane_rows_from_normals",
     "solve_pose",
 ]
@@ -74,6 +83,29 @@ class MatchRows:
 
 
 @dataclass(frozen=True, slots=True)
+class PosePrior:
+    """A Gaussian belief about ``T_target_source`` before the rows are seen.
+
+    Attributes:
+        T_target_source: (4, 4) mean.
+        information: (6, 6) inverse covariance over ``[tx, ty, tz, roll, pitch, yaw]`` (m, rad)
+            of the pose parameterisation :func:`solve_pose` uses (translation in the target
+            frame, Euler angles of ``R = Rz(yaw) Ry(pitch) Rx(roll)``).
+    """
+
+    T_target_source: np.ndarray
+    information: np.ndarray
+
+    def displacement_sigma_m(self, lever_m: float) -> float:
+        """How far (1 sigma, m) the prior's uncertainty may move a point ``lever_m`` from the
+        origin: the largest translation sigma plus the lever times the largest rotation sigma."""
+        covariance = np.linalg.inv(self.information)
+        sigma_t = float(np.sqrt(np.linalg.eigvalsh(covariance[:3, :3])[-1]))
+        sigma_r = float(np.sqrt(np.linalg.eigvalsh(covariance[3:, 3:])[-1]))
+        return sigma_t + lever_m * sigma_r
+
+
+@dataclass(frozen=True, slots=True)
 class SolveResult:
     """Outcome of :func:`solve_pose`.
 
@@ -82,8 +114,14 @@ class SolveResult:
         iterations: Gauss-Newton iterations run.
         converged: the last update was below the convergence thresholds.
         n_rows: residual rows used in the last iteration.
-        degenerate_axes: number of directions projected out as degenerate.
+        degenerate_axes: number of directions of J^T J with an eigenvalue below the degeneracy
+            threshold at the first iteration (without a prior these were projected out).
         min_eigenvalue: smallest eigenvalue of J^T J at the first iteration.
+        information: (6, 6) the rows' information ``J^T W J / sigma^2`` about
+            ``[tx, ty, tz, roll, pitch, yaw]`` at the last iteration (zero rows and columns for
+            axes that were not free; all zero when the solve did not run).
+        residual_sigma_m: the weighted residual standard deviation ``sigma`` of the last
+            iteration (NaN when the solve did not run).
     """
 
     T_target_source: np.ndarray
@@ -92,6 +130,8 @@ class SolveResult:
     n_rows: int
     degenerate_axes: int
     min_eigenvalue: float
+    information: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((6, 6)))
+    residual_sigma_m: float = float("nan")
 
 
 def plane_rows_from_normals(source_index: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> MatchRows:
@@ -161,11 +201,13 @@ class _LocalGeometryMap:
     def _fit(self, nbrs: np.ndarray):
         raise TypeError("subclasses fit their own geometry")
 
-    def nearest_fitted(self, query: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(query rows, target index) of queries whose nearest target point has valid geometry."""
+    def nearest_fitted(self, query: np.ndarray, reach_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """(query rows, target index) of queries whose nearest target point has valid geometry,
+        looked for within ``reach_m`` (at least the fit radius)."""
         if len(query) == 0 or len(self.points) < self.k:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        dist, idx = self.tree.query(query, k=1, distance_upper_bound=self.max_dist)
+        bound = self.max_dist if reach_m is None else max(self.max_dist, reach_m)
+        dist, idx = self.tree.query(query, k=1, distance_upper_bound=bound)
         rows = np.flatnonzero(np.isfinite(dist))
         idx = idx[rows]
         todo = np.unique(idx[self._state[idx] == 0])
@@ -208,9 +250,10 @@ class PlaneMap(_LocalGeometryMap):
         normal, offset, valid = _fit_planes(nbrs, self.max_plane_residual_m, self.min_spread_m)
         return normal, np.repeat(offset[:, None], 3, axis=1), valid
 
-    def rows(self, query: np.ndarray) -> MatchRows:
-        """Point-to-plane rows for ``query`` points (target frame)."""
-        rows, idx = self.nearest_fitted(query)
+    def rows(self, query: np.ndarray, reach_m: float | None = None) -> MatchRows:
+        """Point-to-plane rows for ``query`` points (target frame) whose nearest fitted target
+        point is within ``reach_m`` (default: the fit radius)."""
+        rows, idx = self.nearest_fitted(query, reach_m)
         return MatchRows(rows.astype(np.int64), self._a[idx], self._b[idx, 0])
 
 
@@ -227,9 +270,10 @@ class LineMap(_LocalGeometryMap):
     def _fit(self, nbrs: np.ndarray):
         return _fit_lines(nbrs, self.min_eigen_ratio)
 
-    def rows(self, query: np.ndarray) -> MatchRows:
-        """Point-to-line rows (two per match) for ``query`` points (target frame)."""
-        rows, idx = self.nearest_fitted(query)
+    def rows(self, query: np.ndarray, reach_m: float | None = None) -> MatchRows:
+        """Point-to-line rows (two per match) for ``query`` points (target frame), as
+        :meth:`PlaneMap.rows`."""
+        rows, idx = self.nearest_fitted(query, reach_m)
         return line_rows_from_directions(rows, self._a[idx], self._b[idx])
 
 
@@ -247,10 +291,26 @@ def _rotation_derivatives(x: np.ndarray) -> np.ndarray:
     return np.stack([Rz @ Ry @ dRx, Rz @ dRy @ Rx, dRz @ Ry @ Rx])
 
 
+def observed_share(information: np.ndarray, prior_information: np.ndarray) -> np.ndarray:
+    """(6,) per axis of ``[tx, ty, tz, roll, pitch, yaw]``, the share of the prior's variance the
+    rows removed: ``1 - var_posterior / var_prior`` from the (6,6) rows' and prior's information
+    (1: the data alone decides that axis, 0: it told nothing about it)."""
+    prior_var = np.diag(np.linalg.inv(prior_information))
+    posterior_var = np.diag(np.linalg.inv(information + prior_information))
+    return np.clip(1.0 - posterior_var / prior_var, 0.0, 1.0)
+
+
+def _wrapped_difference(x: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``x - reference`` over ``[tx, ty, tz, roll, pitch, yaw]``, angles wrapped to [-pi, pi)."""
+    d = x - reference
+    d[3:] = (d[3:] + np.pi) % (2 * np.pi) - np.pi
+    return d
+
+
 def solve_pose(
     T_init: np.ndarray,
     source: np.ndarray,
-    find_matches: Callable[[np.ndarray], MatchRows],
+    find_matches: Callable[[np.ndarray, float | None], MatchRows],
     *,
     free_axes: tuple[int, ...] = ALL_AXES,
     max_iterations: int = 10,
@@ -262,8 +322,9 @@ def solve_pose(
     robust_scale_m: float = 0.0,
     row_weights: np.ndarray | None = None,
     level_normal_z: float = 0.0,
-    T_prior: np.ndarray | None = None,
-    hold_yaw_min_degenerate: int = 0,
+    prior: PosePrior | None = None,
+    min_residual_sigma_m: float = 0.01,
+    initial_scale_m: float = 0.0,
 ) -> SolveResult:
     """Estimate ``T_target_source`` minimising the matched rows' residuals.
 
@@ -271,7 +332,9 @@ def solve_pose(
         T_init: (4,4) initial guess.
         source: (N,3) source points in the source frame.
         find_matches: given the source points transformed into the target frame with the current
-            estimate, returns the residual rows (called every ``rematch_every`` iterations).
+            estimate and a reach (m, or None for the matcher's own), returns the residual rows
+            (called every ``rematch_every`` iterations). The reach is the robust kernel's support
+            (three scales) while that is wider than the matcher's radius.
         free_axes: indices into [tx, ty, tz, roll, pitch, yaw] that may change.
         robust_scale_m: 0 for LOAM's weight s = 1 - 0.9 |r| (rows with s <= 0.1 dropped); a
             positive value c selects the Geman-McClure kernel with scale c, whose rows with
@@ -283,27 +346,26 @@ def solve_pose(
             planes fitted to noisy scan lines turn thousands of ground rows into confident,
             spurious x/y/yaw constraints that outvote a few real ones (a pole on open ground)
             and that the eigenvalue test cannot flag. 0 disables it.
-        T_prior: optional (4,4) pose to take along the degenerate directions instead of
-            ``T_init``. LOAM keeps the initial guess there; when the guess comes from a noisier
-            source (scan-to-scan odometry) than a motion-model prediction, the prediction is the
-            better value for what the data cannot see.
-        hold_yaw_min_degenerate: with ``T_prior``, when at least this many directions are
-            degenerate (0: never), start again with yaw held at the value of ``T_prior`` (the
-            reported degenerate count is the larger of the two attempts'). In
-            such scenes (open land, one pole in view) the few constraints left tie yaw to the
-            along-track position, so a small speed error in the prediction would be absorbed as
-            a turn; a vehicle's yaw rate is the better-known of the two.
+        prior: optional Gaussian prior on the pose; with it the estimate is the maximum a
+            posteriori pose (rows and prior together) and nothing is projected out.
+        min_residual_sigma_m: lower bound of the residual standard deviation that scales the
+            rows' information (a near-perfect fit must not make the rows infinitely certain).
+        initial_scale_m: with the Geman-McClure kernel, its scale at the first iteration when
+            that is wider than ``4 * robust_scale_m`` (how far the points may be off at the start,
+            e.g. from a prior's uncertainty); it halves every iteration down to the scale.
 
     Returns a :class:`SolveResult`; when there are fewer than ``min_rows`` rows on the first
     iteration, the initial guess is returned with ``iterations == 0``.
     """
     x = xyz_rpy_from_pose(T_init)
-    T_start = T_init.copy()  # returned as is when there are too few rows at the start
     free = np.asarray(free_axes, dtype=np.int64)
+    x_prior = None if prior is None else xyz_rpy_from_pose(prior.T_target_source)
+    prior_information = None if prior is None else prior.information[np.ix_(free, free)]
     projector = None
     degenerate = 0
-    degenerate_before_hold = 0
     min_eig = float("nan")
+    information = np.zeros((6, 6))
+    sigma_m = float("nan")
     matches = MatchRows.empty()
     converged = False
     iteration = 0
@@ -311,21 +373,23 @@ def solve_pose(
     while iteration < max_iterations:
         T = pose_from_xyz_rpy(x)
         q_all = None
+        # Geman-McClure scale: it starts wide and halves each iteration down to robust_scale_m,
+        # so a poor initial guess still finds rows while the final estimate ignores off-surface
+        # matches.
+        scale_m = max(robust_scale_m, max(4.0 * robust_scale_m, initial_scale_m) * 0.5**iteration)
         if iteration % rematch_every == 0:
             q_all = source @ T[:3, :3].T + T[:3, 3]
-            matches = find_matches(q_all)
+            matches = find_matches(q_all, 3.0 * scale_m if robust_scale_m > 0 else None)
         if len(matches) < min_rows:
             if iteration == 0:
-                return SolveResult(T_start, 0, False, len(matches), degenerate_before_hold, min_eig)
+                return SolveResult(T_init.copy(), 0, False, len(matches), 0, min_eig)
             break
         p = source[matches.source_index]
         q = p @ T[:3, :3].T + T[:3, 3] if q_all is None else q_all[matches.source_index]
         residual = np.einsum("ij,ij->i", matches.normal, q) + matches.offset
         if robust_scale_m > 0:
             # Geman-McClure: IRLS weight (c^2 / (c^2 + r^2))^2, rows scaled by its square root.
-            # The scale starts 4x wider and halves each iteration down to c, so a poor initial
-            # guess still finds rows while the final estimate ignores off-surface matches.
-            c2 = (robust_scale_m * max(1.0, 4.0 * 0.5**iteration)) ** 2
+            c2 = scale_m**2
             weight = c2 / (c2 + residual**2)
         else:
             weight = 1.0 - 0.9 * np.abs(residual)
@@ -335,7 +399,7 @@ def solve_pose(
         n_rows = int(use.sum())
         if n_rows < min_rows:
             if iteration == 0:
-                return SolveResult(T_start, 0, False, n_rows, degenerate_before_hold, min_eig)
+                return SolveResult(T_init.copy(), 0, False, n_rows, 0, min_eig)
             break
         dR = _rotation_derivatives(x)  # (3,3,3)
         n = matches.normal[use]
@@ -352,33 +416,23 @@ def solve_pose(
         rf = residual[use] * w
         H = Jf.T @ Jf
         g = Jf.T @ rf
+        sigma_m = max(float(np.sqrt(rf @ rf / (w @ w))), min_residual_sigma_m)
+        information[np.ix_(free, free)] = H / sigma_m**2
         if iteration == 0:
             vals, vecs = np.linalg.eigh(H)
             keep = vals >= degeneracy_threshold
             degenerate = int((~keep).sum())
-            if T_prior is not None and 0 < hold_yaw_min_degenerate <= degenerate and 5 in free:
-                # Start again with yaw fixed at the prior's: rematch and redo this iteration.
-                min_eig, degenerate_before_hold = float(vals[0]), degenerate
-                x[5] = xyz_rpy_from_pose(T_prior)[5]
-                T_start = pose_from_xyz_rpy(x)
-                free = free[free != 5]
-                continue
-            if np.isnan(min_eig):
-                min_eig = float(vals[0])
-            if degenerate:
+            min_eig = float(vals[0])
+            if degenerate and prior is None:
                 projector = vecs @ np.diag(keep.astype(float)) @ vecs.T
-                if T_prior is not None:
-                    step = xyz_rpy_from_pose(T_prior)[free] - x[free]
-                    rot = free >= 3
-                    step[rot] = (step[rot] + np.pi) % (2 * np.pi) - np.pi
-                    x[free] += step - projector @ step
-                    T = pose_from_xyz_rpy(x)
-                    q = p @ T[:3, :3].T + T[:3, 3]
-                    residual = np.einsum("ij,ij->i", matches.normal, q) + matches.offset
-                    rf = residual[use] * w
-                    g = Jf.T @ rf
+        if prior_information is not None and x_prior is not None:
+            # Maximum a posteriori step: rows and prior, each weighted by its information.
+            A = H / sigma_m**2 + prior_information
+            b = g / sigma_m**2 + prior_information @ _wrapped_difference(x, x_prior)[free]
+        else:
+            A, b = H, g
         try:
-            dx = -np.linalg.solve(H + 1e-9 * np.eye(len(free)), g)
+            dx = -np.linalg.solve(A + 1e-9 * np.eye(len(free)), b)
         except np.linalg.LinAlgError:
             break
         if projector is not None:
@@ -386,7 +440,7 @@ def solve_pose(
         x[free] += dx
         full = np.zeros(6)
         full[free] = dx
-        annealing = robust_scale_m > 0 and iteration < 2
+        annealing = robust_scale_m > 0 and scale_m > robust_scale_m
         if (
             not annealing
             and np.rad2deg(np.linalg.norm(full[3:])) < converge_rotation_deg
@@ -396,5 +450,4 @@ def solve_pose(
             iteration += 1
             break
         iteration += 1
-    degenerate = max(degenerate, degenerate_before_hold)
-    return SolveResult(pose_from_xyz_rpy(x), iteration, converged, n_rows, degenerate, min_eig)
+    return SolveResult(pose_from_xyz_rpy(x), iteration, converged, n_rows, degenerate, min_eig, information, sigma_m)

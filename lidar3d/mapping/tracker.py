@@ -5,9 +5,10 @@ Per scan (each pose is the lidar pose at the scan's header stamp, see :mod:`lida
 1. deskew the sweep to its stamp with the motion model's predicted twist;
 2. scan-to-scan odometry (two-step LM, :class:`~lidar3d.mapping.odometry.ScanToScanOdometry`) from
    the motion-model guess;
-3. scan-to-submap refinement (6-DoF) from the odometry guess; along directions the submap leaves
-   degenerate it takes the motion model's vehicle prediction
-   (:class:`~lidar3d.mapping.motion_model.MotionModel`) instead;
+3. scan-to-submap refinement (6-DoF) from the odometry guess, fused with the motion model's
+   vehicle prediction and its uncertainty (:meth:`~lidar3d.mapping.motion_model.MotionModel.prior`):
+   each direction comes from the scan as far as the scan observes it and from the vehicle model
+   as far as it does not, by their information; there is no rule on the kind of scene;
 4. the motion model learns the twist between the previous pose and this one;
 5. the previous sweep is settled: now that the motion over it (the forward difference to this
    pose) is known, it is deskewed with that motion and re-registered when that moves a point by
@@ -29,7 +30,7 @@ from lidar3d.mapping.deskew import twist_between
 from lidar3d.mapping.keyframes import Submap
 from lidar3d.mapping.motion_model import MotionModel
 from lidar3d.mapping.odometry import OdometryStep, ScanToScanOdometry
-from lidar3d.mapping.registration import SolveResult
+from lidar3d.mapping.registration import PosePrior, SolveResult, observed_share
 from lidar3d.mapping.scan_to_map import register_to_submap
 from lidar3d.mapping.se3 import exp_se3
 from lidar3d.mapping.sweep import SweepFeatures
@@ -73,7 +74,10 @@ class TrackResult:
         registration: the scan-to-submap registration (iterations, rows, degenerate directions,
             smallest eigenvalue), None when it did not run (first scan, empty submap, too few
             matches).
-        yaw_held: the registration held yaw at the motion model's prediction.
+        prior: the motion model's prior the registration was fused with (None before the model
+            is established: a cold start registers from the odometry guess alone).
+        heading_observed: the scan, not the prior, decided the yaw (it removed at least half
+            of the prior's yaw variance).
         deskew_twist: (6,) the predicted twist the scan was deskewed and registered with.
         settled: the previous sweep, final now (None for the first scan).
         timings_ms: wall milliseconds per stage: deskew, odometry, mapping, redeskew (the last
@@ -85,7 +89,8 @@ class TrackResult:
     T_world_odom: np.ndarray
     motion_model_only: bool
     registration: SolveResult | None
-    yaw_held: bool
+    prior: PosePrior | None
+    heading_observed: bool
     deskew_twist: np.ndarray
     settled: SettledSweep | None
     timings_ms: dict[str, float]
@@ -101,7 +106,8 @@ class _Refinement:
     T_world_lidar: np.ndarray
     motion_model_only: bool
     registration: SolveResult | None
-    yaw_held: bool
+    prior: PosePrior | None = None
+    heading_observed: bool = True
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,6 +141,7 @@ class Tracker:
     def __init__(self, config: Config, submap: Submap) -> None:
         self._sweep_period_s = config.sensor.resolved_model.sweep_period_s
         self._mapping = config.mapping
+        self._vehicle = config.motion
         odo = config.odometry
         self._odometry = ScanToScanOdometry(
             n_rings=config.sensor.resolved_model.n_rings,
@@ -173,7 +180,7 @@ class Tracker:
             self._motion.update(
                 twist_between(previous.T_world_lidar, T_world_lidar, dt_s),
                 well_constrained=well_constrained,
-                heading_observed=not refinement.yaw_held,
+                heading_observed=refinement.heading_observed,
             )
         settled = None
         if self._unsettled is not None:
@@ -187,7 +194,8 @@ class Tracker:
             T_world_odom=T_world_odom,
             motion_model_only=refinement.motion_model_only,
             registration=refinement.registration,
-            yaw_held=refinement.yaw_held,
+            prior=refinement.prior,
+            heading_observed=refinement.heading_observed,
             deskew_twist=predicted,
             settled=settled,
             timings_ms=clock.ms,
@@ -212,51 +220,36 @@ class Tracker:
             self._unsettled = _Unsettled(u.scan, u.sweep, correction @ u.T_world_lidar, u.deskew_twist, u.registered)
 
     def _register(
-        self,
-        deskewed: SweepFeatures,
-        T_world_lidar: np.ndarray,
-        iterations: int,
-        T_prior: np.ndarray | None = None,
-        hold_yaw: bool = False,
+        self, deskewed: SweepFeatures, T_world_lidar: np.ndarray, iterations: int, prior: PosePrior | None = None
     ) -> SolveResult:
-        """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar`` (see
-        :func:`register_to_submap` for ``T_prior`` and ``hold_yaw``)."""
+        """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar``, fused with
+        ``prior`` when given (see :func:`register_to_submap`)."""
         mp = self._mapping
         corner, surf = deskewed.registration_clouds(mp)
         surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
         target = self._submap.target(T_world_lidar[:3, 3])
-        return register_to_submap(target, corner, surf, T_world_lidar, mp, iterations, T_prior, hold_yaw)
+        return register_to_submap(target, corner, surf, T_world_lidar, mp, iterations, prior)
 
     def _refine(
         self, deskewed: SweepFeatures, previous: _Latest | None, step: OdometryStep, dt_s: float
     ) -> _Refinement:
         """Scan-to-submap refinement of a sweep deskewed with the predicted motion.
 
-        Registration starts from the odometry pose; along directions the submap leaves
-        degenerate it takes the motion model's vehicle prediction instead (see
-        :mod:`lidar3d.mapping.motion_model`). :meth:`_settle` revisits the pose once the motion
-        over the sweep is known.
+        Registration starts from the odometry pose and, once the motion model is established,
+        is fused with its vehicle prior. :meth:`_settle` revisits the pose once the motion over
+        the sweep is known.
         """
         if previous is None:
-            return _Refinement(np.eye(4), False, None, False)
+            return _Refinement(np.eye(4), False, None)
         T_world_lidar = previous.T_world_lidar @ step.T_prev_curr
         if not len(self._submap):
-            return _Refinement(T_world_lidar, step.used_motion_model, None, False)
-        mp = self._mapping
-        straight = abs(np.degrees(self._motion.twist[5])) < mp.straight_max_yaw_rate_deg_s
-        # LOAM keeps the odometry guess along degenerate directions. On a straight the vehicle's
-        # constant-velocity prediction is the better value there: the odometry's edges are then
-        # mostly far structure (90 m away on open land), whose azimuth-quantised edge points stay
-        # put from sweep to sweep and pull the step short (2-4 cm per scan on `long`). In a turn
-        # the prediction lags, so the odometry guess is kept unless its edge step was blind too.
-        T_prior = None
-        if self._motion.established and (straight or not step.edge_observed):
-            T_prior = previous.T_world_lidar @ exp_se3(self._motion.vehicle_twist() * dt_s)
-        refined = self._register(deskewed, T_world_lidar, mp.max_iterations, T_prior=T_prior, hold_yaw=straight)
+            return _Refinement(T_world_lidar, step.used_motion_model, None)
+        prior = self._motion.prior(previous.T_world_lidar, dt_s, self._vehicle) if self._motion.established else None
+        refined = self._register(deskewed, T_world_lidar, self._mapping.max_iterations, prior)
         if refined.iterations == 0:
-            return _Refinement(T_world_lidar, step.used_motion_model, None, False)
-        yaw_held = T_prior is not None and straight and 0 < mp.hold_yaw_min_degenerate <= refined.degenerate_axes
-        return _Refinement(refined.T_target_source, False, refined, yaw_held)
+            return _Refinement(T_world_lidar, step.used_motion_model, None)
+        heading_observed = prior is None or observed_share(refined.information, prior.information)[5] >= 0.5
+        return _Refinement(refined.T_target_source, False, refined, prior, heading_observed)
 
     def _settle(self, unsettled: _Unsettled, twist: np.ndarray) -> SettledSweep:
         """The unsettled sweep, re-registered with its sweep deskewed by ``twist`` (its forward
