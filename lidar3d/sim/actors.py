@@ -188,6 +188,78 @@ def _pedestrian_parts(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]
     return np.array([[0.0, 0.0, 0.5 * height]]), np.array([[0.4, 0.5, height]])
 
 
+def _lead_car_motion(motion: VehicleMotion, params: TrafficParams, t: np.ndarray) -> _MotionTable:
+    """Ahead in the lane, accelerating harder and topping out faster than the vehicle: it pulls away."""
+    accel = max(motion.params.max_accel_mps2 + 0.3, 1.5)
+    top = max(params.lead_car_speed_mps, motion.params.cruise_speed_mps + 1.0)
+    start = motion.params.min_speed_mps
+    t_top = (top - start) / accel
+    position = np.where(
+        t < t_top, start * t + 0.5 * accel * t**2, start * t_top + 0.5 * accel * t_top**2 + top * (t - t_top)
+    )
+    position = params.lead_car_gap_m + position
+    gone = np.flatnonzero(position > motion.length_m + 150.0)
+    end = float(t[gone[0]]) if gone.size else float(t[-1])
+    return t, position, np.zeros_like(t), 0.0, (0.0, end)
+
+
+def _follower_motion(motion: VehicleMotion, params: TrafficParams, t: np.ndarray, k: int) -> _MotionTable:
+    """Follower ``k`` (0 first): the vehicle's own path positions, a delay later and a gap behind."""
+    delay = params.follower_delay_s * (k + 1)
+    gap = params.follower_gap_m * (k + 1)
+    behind = motion.path_position_at(np.clip(t - delay, 0.0, motion.duration_s))
+    before_start = np.clip(delay - t, 0.0, None) * motion.params.min_speed_mps
+    return t, behind - gap - before_start, np.zeros_like(t), 0.0, (0.0, float(t[-1]))
+
+
+def _oncoming_motion(motion: VehicleMotion, params: TrafficParams, rng: np.random.Generator) -> _MotionTable:
+    """The opposite lane at a constant speed, meeting the vehicle at a random path position."""
+    speed = rng.uniform(*params.oncoming_speed_mps)
+    meet = rng.uniform(20.0, max(21.0, motion.length_m - 20.0))
+    t_meet = float(motion.time_at_path_position(meet)[0])
+    first, last = -100.0, motion.length_m + 100.0
+    t0 = max(0.0, t_meet - (last - meet) / speed)
+    t1 = min(motion.duration_s, t_meet + (meet - first) / speed)
+    t = np.array([t0, t1])
+    return t, meet - speed * (t - t_meet), np.full(2, -2.0 * motion.params.lane_offset_m), np.pi, (t0, t1)
+
+
+def _walker_motion(motion: VehicleMotion, params: TrafficParams, rng: np.random.Generator) -> _MotionTable:
+    """Along a sidewalk, either side, either direction, the whole drive."""
+    speed = rng.uniform(*params.pedestrian_speed_mps)
+    direction = 1.0 if rng.random() < 0.5 else -1.0
+    side = 1.0 if rng.random() < 0.5 else -1.0
+    start = rng.uniform(0.0, motion.length_m)
+    t = np.array([0.0, motion.duration_s])
+    right = side * params.sidewalk_offset_m - motion.params.lane_offset_m
+    position = start + direction * speed * t
+    return t, position, np.full(2, right), 0.0 if direction > 0 else np.pi, (0.0, motion.duration_s)
+
+
+def _crosser_motion(motion: VehicleMotion, params: TrafficParams, rng: np.random.Generator) -> _MotionTable:
+    """Across the street on a straight stretch, curb to curb, finishing a little before the vehicle arrives."""
+    speed = rng.uniform(*params.pedestrian_speed_mps)
+    half = params.sidewalk_offset_m
+    lane_offset_m = motion.params.lane_offset_m
+    for _ in range(50):  # a crossing on a straight stretch (offsets beyond a corner's radius fold over)
+        at = rng.uniform(30.0, max(31.0, motion.length_m - 10.0))
+        _, heading = motion.lane_xy(np.array([at - 15.0, at + 15.0]))
+        if heading[0] @ heading[1] > np.cos(np.deg2rad(5.0)):
+            break
+    duration = 2.0 * half / speed
+    t_arrive = float(motion.time_at_path_position(at)[0])
+    t1 = t_arrive - rng.uniform(*params.crossing_lead_s)
+    t0 = t1 - duration
+    t1 = min(t1, motion.duration_s)
+    t0 = min(max(t0, 0.0), t1)
+    to_left = rng.random() < 0.5
+    sign = 1.0 if to_left else -1.0  # walking from the right curb to the left one, or back
+    start_right, end_right = sign * half - lane_offset_m, -sign * half - lane_offset_m
+    t = np.array([t1 - duration, t1])
+    right = np.array([start_right, end_right])
+    return t, np.full(2, at), right, (0.5 if to_left else -0.5) * np.pi, (t0, t1)
+
+
 class Traffic:
     """The moving actors of one drive.
 
@@ -217,18 +289,25 @@ class Traffic:
         self._ego_xy = ego[:, :2, 3]
         forward = ego[:, :2, 1]  # the SPAN vehicle frame's y axis points forward
         self._ego_forward = forward / np.linalg.norm(forward, axis=1, keepdims=True)
-        lane_offset = motion.params.lane_offset_m
+        knots = self._knots_s
         candidates: list[tuple[ObjectClass, tuple[np.ndarray, np.ndarray], Callable[[], _MotionTable]]] = []
         if params.lead_car:
-            candidates.append((ObjectClass.MOVING_CAR, _car_parts(rng), lambda: self._lead_car()))
+            candidates.append(
+                (ObjectClass.MOVING_CAR, _car_parts(rng), lambda: _lead_car_motion(motion, params, knots))
+            )
         for k in range(params.followers):
-            candidates.append((ObjectClass.MOVING_CAR, _car_parts(rng), functools.partial(self._follower, k)))
+            follow = functools.partial(_follower_motion, motion, params, knots, k)
+            candidates.append((ObjectClass.MOVING_CAR, _car_parts(rng), follow))
         for _ in range(params.oncoming_cars):
-            candidates.append((ObjectClass.MOVING_CAR, _car_parts(rng), lambda: self._oncoming(rng, lane_offset)))
+            candidates.append((ObjectClass.MOVING_CAR, _car_parts(rng), lambda: _oncoming_motion(motion, params, rng)))
         for _ in range(params.walking_pedestrians):
-            candidates.append((ObjectClass.PEDESTRIAN, _pedestrian_parts(rng), lambda: self._walker(rng, lane_offset)))
+            candidates.append(
+                (ObjectClass.PEDESTRIAN, _pedestrian_parts(rng), lambda: _walker_motion(motion, params, rng))
+            )
         for _ in range(params.crossing_pedestrians):
-            candidates.append((ObjectClass.PEDESTRIAN, _pedestrian_parts(rng), lambda: self._crosser(rng, lane_offset)))
+            candidates.append(
+                (ObjectClass.PEDESTRIAN, _pedestrian_parts(rng), lambda: _crosser_motion(motion, params, rng))
+            )
         actors: list[Actor] = []
         for object_class, (centers, sizes), draw in candidates:
             for _ in range(_ATTEMPTS):
@@ -240,74 +319,6 @@ class Traffic:
                 logger.debug("left out a %s that kept crossing the vehicle's path", object_class.name.lower())
         self.actors = tuple(actors)
         self.object_class = np.array([int(a.object_class) for a in actors], dtype=np.uint8)
-
-    def _lead_car(self) -> _MotionTable:
-        motion, params = self.motion, self.params
-        accel = max(motion.params.max_accel_mps2 + 0.3, 1.5)
-        top = max(params.lead_car_speed_mps, motion.params.cruise_speed_mps + 1.0)
-        start = motion.params.min_speed_mps
-        t = self._knots_s
-        t_top = (top - start) / accel
-        position = np.where(
-            t < t_top, start * t + 0.5 * accel * t**2, start * t_top + 0.5 * accel * t_top**2 + top * (t - t_top)
-        )
-        position = params.lead_car_gap_m + position
-        gone = np.flatnonzero(position > motion.length_m + 150.0)
-        end = float(t[gone[0]]) if gone.size else float(t[-1])
-        return t, position, np.zeros_like(t), 0.0, (0.0, end)
-
-    def _follower(self, k: int) -> _MotionTable:
-        motion, params = self.motion, self.params
-        t = self._knots_s
-        delay = params.follower_delay_s * (k + 1)
-        gap = params.follower_gap_m * (k + 1)
-        behind = motion.path_position_at(np.clip(t - delay, 0.0, motion.duration_s))
-        before_start = np.clip(delay - t, 0.0, None) * motion.params.min_speed_mps
-        return t, behind - gap - before_start, np.zeros_like(t), 0.0, (0.0, float(t[-1]))
-
-    def _oncoming(self, rng: np.random.Generator, lane_offset_m: float) -> _MotionTable:
-        motion = self.motion
-        speed = rng.uniform(*self.params.oncoming_speed_mps)
-        meet = rng.uniform(20.0, max(21.0, motion.length_m - 20.0))
-        t_meet = float(motion.time_at_path_position(meet)[0])
-        first, last = -100.0, motion.length_m + 100.0
-        t0 = max(0.0, t_meet - (last - meet) / speed)
-        t1 = min(motion.duration_s, t_meet + (meet - first) / speed)
-        t = np.array([t0, t1])
-        return t, meet - speed * (t - t_meet), np.full(2, -2.0 * lane_offset_m), np.pi, (t0, t1)
-
-    def _walker(self, rng: np.random.Generator, lane_offset_m: float) -> _MotionTable:
-        motion = self.motion
-        speed = rng.uniform(*self.params.pedestrian_speed_mps)
-        direction = 1.0 if rng.random() < 0.5 else -1.0
-        side = 1.0 if rng.random() < 0.5 else -1.0
-        start = rng.uniform(0.0, motion.length_m)
-        t = np.array([0.0, motion.duration_s])
-        right = side * self.params.sidewalk_offset_m - lane_offset_m
-        position = start + direction * speed * t
-        return t, position, np.full(2, right), 0.0 if direction > 0 else np.pi, (0.0, motion.duration_s)
-
-    def _crosser(self, rng: np.random.Generator, lane_offset_m: float) -> _MotionTable:
-        motion = self.motion
-        speed = rng.uniform(*self.params.pedestrian_speed_mps)
-        half = self.params.sidewalk_offset_m
-        for _ in range(50):  # a crossing on a straight stretch (offsets beyond a corner's radius fold over)
-            at = rng.uniform(30.0, max(31.0, motion.length_m - 10.0))
-            _, heading = motion.lane_xy(np.array([at - 15.0, at + 15.0]))
-            if heading[0] @ heading[1] > np.cos(np.deg2rad(5.0)):
-                break
-        duration = 2.0 * half / speed
-        t_arrive = float(motion.time_at_path_position(at)[0])
-        t1 = t_arrive - rng.uniform(*self.params.crossing_lead_s)
-        t0 = t1 - duration
-        t1 = min(t1, motion.duration_s)
-        t0 = min(max(t0, 0.0), t1)
-        to_left = rng.random() < 0.5
-        sign = 1.0 if to_left else -1.0  # walking from the right curb to the left one, or back
-        start_right, end_right = sign * half - lane_offset_m, -sign * half - lane_offset_m
-        t = np.array([t1 - duration, t1])
-        right = np.array([start_right, end_right])
-        return t, np.full(2, at), right, (0.5 if to_left else -0.5) * np.pi, (t0, t1)
 
     def _keeps_clear(self, actor: Actor) -> bool:
         """Whether the actor never comes within the clearance of the vehicle's box."""
