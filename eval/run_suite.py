@@ -48,7 +48,7 @@ from suite_metrics import loop_closures, score_trajectory  # noqa: E402
 from suite_peers import PEERS, peer_version  # noqa: E402
 from suite_report import METHOD_NAMES, render_markdown  # noqa: E402
 
-SCENARIOS = ("loop", "long", "hilly", "fast", "stops", "blind_turn")
+SCENARIOS = ("loop", "long", "hilly", "fast", "stops", "blind_turn", "figure_eight", "city_traffic", "forest_trail")
 DEFAULT_RESULTS = REPO / "eval" / "results"
 DEFAULT_BENCHMARKS = REPO / "BENCHMARKS.md"
 QUICK_COMMAND = ".venv/bin/python eval/run_suite.py --duration 20"

@@ -155,6 +155,7 @@ def _wall_world(distance_m: float) -> World:
         vertices_m=vertices,
         triangles=np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int32),
         triangle_object_id=np.array([1, 1], dtype=np.int32),
+        triangle_glass=np.zeros(2, dtype=bool),
         object_class=np.array([int(ObjectClass.GROUND), int(ObjectClass.WALL)], dtype=np.uint8),
         object_center_m=np.array([[0.0, 0.0, 0.0], [distance_m, 0.0, 0.0]]),
         block_kind=np.array([["urban"]]),

@@ -15,6 +15,9 @@ EXPECTED = {
     "fast": ((620, 720), 1),
     "stops": ((380, 440), 1),
     "blind_turn": ((480, 560), 0),
+    "figure_eight": ((700, 820), 2),  # the crossing of the eight and the start
+    "city_traffic": ((480, 560), 1),
+    "forest_trail": ((470, 540), 1),
 }
 
 
@@ -117,7 +120,9 @@ def test_duration_and_lookup_errors():
     with pytest.raises(SimulationError, match="shorter than one sweep"):
         Simulation("loop", duration_s=0.05)
     with pytest.raises(
-        SimulationError, match="unknown scenario 'nope'; known: loop, long, hilly, fast, stops, blind_turn"
+        SimulationError,
+        match="unknown scenario 'nope'; known: loop, long, hilly, fast, stops, blind_turn, figure_eight, "
+        "city_traffic, forest_trail",
     ):
         Simulation("nope")
     with pytest.raises(SimulationError, match="unknown sensor model 'vlp64'"):

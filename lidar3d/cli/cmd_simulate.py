@@ -16,11 +16,14 @@ SCENARIO_HELP = {
     "fast": "~700 m at up to 10 m/s with sharp 90-degree corners",
     "stops": "~400 m town drive at 2-9 m/s with three stops of 3-6 s, vibration and calibration error",
     "blind_turn": "~520 m: 240 m of open land at 4.5-8 m/s ending in a 90-degree turn on open land",
+    "figure_eight": "~800 m figure eight: a 200 m open field ending in a sharp turn, then 4.6-5.0 m/s",
+    "city_traffic": "~515 m city loop with traffic, pedestrians, glass facades and a 160 m walled canyon",
+    "forest_trail": "~500 m rough forest trail: scattered-leaf crowns, 0.3 deg vibration, speed changes",
 }
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
-    scenarios = "\n".join(f"  {name:<7} {text}" for name, text in SCENARIO_HELP.items())
+    scenarios = "\n".join(f"  {name:<12} {text}" for name, text in SCENARIO_HELP.items())
     parser = subparsers.add_parser(
         "simulate",
         help="simulate a lidar drive: bag, ground truth, NovAtel SPAN log, extrinsics",

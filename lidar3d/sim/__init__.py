@@ -6,6 +6,7 @@ Modules, one concept each:
   one triangle mesh with an object id per triangle;
 * :mod:`~lidar3d.sim.trajectory`: vehicle motion along a street route (speed profiles, stops,
   suspension vibration), and revisit detection;
+* :mod:`~lidar3d.sim.actors`: moving cars and pedestrians along the route (per-point labels);
 * :mod:`~lidar3d.sim.scenarios`: the named scenarios;
 * :mod:`~lidar3d.sim.rig`: where the lidar and the antenna sit relative to the IMU;
 * :mod:`~lidar3d.sim.lidar`: the ray-cast sensor (per-column poses, noise, dropouts, intensity,
@@ -17,6 +18,7 @@ Modules, one concept each:
 Open3D is imported only when the first scan is ray cast.
 """
 
+from lidar3d.sim.actors import Traffic, TrafficParams
 from lidar3d.sim.lidar import LidarParams, SimulatedScan, StampMode
 from lidar3d.sim.output import BagFormat, SimulationOutputs, simulate, write_simulation
 from lidar3d.sim.rig import RigParams
@@ -25,14 +27,16 @@ from lidar3d.sim.simulation import DEFAULT_START_TIME_NS, Simulation
 from lidar3d.sim.span import GeoOrigin, SpanParams
 from lidar3d.sim.terrain import TerrainParams
 from lidar3d.sim.trajectory import RevisitPair, RouteParams
-from lidar3d.sim.world import BlockKind, ObjectClass, StreetLayout, World, WorldParams
+from lidar3d.sim.world import DYNAMIC_CLASSES, BlockKind, EdgeSide, ObjectClass, StreetLayout, World, WorldParams
 
 __all__ = [
     "DEFAULT_SCENARIO",
     "DEFAULT_START_TIME_NS",
+    "DYNAMIC_CLASSES",
     "SCENARIOS",
     "BagFormat",
     "BlockKind",
+    "EdgeSide",
     "GeoOrigin",
     "LidarParams",
     "ObjectClass",
@@ -47,6 +51,8 @@ __all__ = [
     "StampMode",
     "StreetLayout",
     "TerrainParams",
+    "Traffic",
+    "TrafficParams",
     "World",
     "WorldParams",
     "get_scenario",

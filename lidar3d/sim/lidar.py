@@ -12,6 +12,12 @@ incidence, and an intensity from the surface's reflectivity and the incidence an
 on the road are bright, asphalt dark, verges brighter). Rays that hit nothing are absent. The
 caller gets per point the object it hit (0 = ground) and that object's class.
 
+Materials and moving objects (none in a world without them): a ray whose first surface is glass
+(``World.triangle_glass``) returns nothing; moving actors (:mod:`~lidar3d.sim.actors`), posed at
+each column's firing time, are intersected exactly and win where they are nearer than the world
+(also in front of glass). A point on an actor carries the actor's object id and class
+(:attr:`SimulatedScan.dynamic_mask`).
+
 Imperfections (all off by default): a per-laser elevation error and range bias drawn once from the
 seed; the rays are cast along the TRUE (perturbed) beams while the points are computed from the
 measured range with the NOMINAL elevation table, as a driver with a stock calibration does. Dropped
@@ -33,11 +39,13 @@ import numpy as np
 from lidar3d.errors import SimulationError
 from lidar3d.records import Scan
 from lidar3d.sensors import SensorModel
-from lidar3d.sim.world import ObjectClass, World
+from lidar3d.sim.actors import PosedActors, cast_actor_rays
+from lidar3d.sim.world import DYNAMIC_CLASSES, ObjectClass, World
 
 __all__ = ["LidarParams", "LidarSimulator", "SimulatedScan", "StampMode"]
 
 _CALIBRATION_STREAM = 0xCA1B
+_ACTOR_REFLECTIVITY_STREAM = 0xAC70
 
 # Reflectivity ranges (Velodyne calibrated units, 0-100 diffuse) per object class.
 _REFLECTIVITY = {
@@ -48,6 +56,7 @@ _REFLECTIVITY = {
     ObjectClass.TREE: (10.0, 40.0),
     ObjectClass.CAR: (5.0, 100.0),
 }
+_ACTOR_REFLECTIVITY = {ObjectClass.MOVING_CAR: (5.0, 100.0), ObjectClass.PEDESTRIAN: (10.0, 50.0)}
 _ASPHALT, _VERGE, _MARKING = 10.0, 35.0, 110.0
 
 
@@ -125,7 +134,8 @@ class SimulatedScan:
         index: scan index within the simulation.
         scan: the sweep as a real driver gives it (lidar frame at each point's firing time).
         object_id: (N,) int32 id of the object each point hit; 0 is the ground
-            (see :class:`~lidar3d.sim.world.World` for the objects).
+            (see :class:`~lidar3d.sim.world.World` for the objects; ids after the world's are the
+            moving actors of :class:`~lidar3d.sim.actors.Traffic`).
         object_class: (N,) uint8 :class:`~lidar3d.sim.world.ObjectClass` of that object.
         column: (N,) uint16 firing column (0 = first of the sweep).
         T_world_lidar: (4, 4) true lidar pose at the scan's header stamp.
@@ -153,6 +163,11 @@ class SimulatedScan:
         """(N,) bool: the point lies on the ground."""
         return self.object_id == 0
 
+    @property
+    def dynamic_mask(self) -> np.ndarray:
+        """(N,) bool: the point lies on a moving object (a moving car or a pedestrian)."""
+        return np.isin(self.object_class, [int(c) for c in DYNAMIC_CLASSES])
+
 
 class LidarSimulator:
     """Casts the sensor's beams through ``world``.
@@ -162,6 +177,8 @@ class LidarSimulator:
         sensor: beam elevations, columns and rotation rate.
         params: measurement model.
         seed: seeds the per-object reflectivities and the per-laser calibration errors.
+        actor_classes: (A,) :class:`ObjectClass` of the moving actors, whose object ids follow the
+            world's objects (None: no actors).
 
     Attributes:
         directions_lidar: (n_columns, n_rings, 3) nominal unit beams (the points are computed with these).
@@ -173,7 +190,9 @@ class LidarSimulator:
             (0, or the last column's firing time in sweep-end mode).
     """
 
-    def __init__(self, world: World, sensor: SensorModel, params: LidarParams, seed: int) -> None:
+    def __init__(
+        self, world: World, sensor: SensorModel, params: LidarParams, seed: int, actor_classes: np.ndarray | None = None
+    ) -> None:
         import open3d as o3d
 
         self.world = world
@@ -193,6 +212,13 @@ class LidarSimulator:
             ids = world.object_ids_of(object_class)
             reflectivity[ids] = rng.uniform(lo, hi, size=len(ids))
         self._reflectivity = reflectivity
+        self._object_class = world.object_class
+        if actor_classes is not None and len(actor_classes):
+            actor_rng = np.random.default_rng([int(seed), _ACTOR_REFLECTIVITY_STREAM])
+            ranges = np.array([_ACTOR_REFLECTIVITY[ObjectClass(c)] for c in actor_classes])
+            self._reflectivity = np.concatenate([reflectivity, actor_rng.uniform(ranges[:, 0], ranges[:, 1])])
+            self._object_class = np.concatenate([world.object_class, np.asarray(actor_classes, dtype=np.uint8)])
+        self._has_glass = bool(np.any(world.triangle_glass))
         n_columns, n_rings = sensor.n_columns, sensor.n_rings
         azimuth = np.deg2rad(params.start_azimuth_deg) - 2.0 * np.pi * np.arange(n_columns) / n_columns
         calibration = np.random.default_rng([int(seed), _CALIBRATION_STREAM])
@@ -210,6 +236,7 @@ class LidarSimulator:
         T_world_lidar_columns: np.ndarray,
         rng: np.random.Generator,
         T_world_lidar_stamp: np.ndarray,
+        actors: PosedActors | None = None,
     ) -> SimulatedScan:
         """Simulate one sweep.
 
@@ -219,6 +246,7 @@ class LidarSimulator:
             T_world_lidar_columns: (n_columns, 4, 4) lidar pose at each column's firing time.
             rng: source of all randomness of this sweep.
             T_world_lidar_stamp: (4, 4) true lidar pose at ``stamp_ns`` (kept in the result).
+            actors: the moving actors near the sensor, posed at each column's time (None: none).
         """
         n_columns, n_rings = self.sensor.n_columns, self.sensor.n_rings
         if T_world_lidar_columns.shape != (n_columns, 4, 4):
@@ -234,6 +262,11 @@ class LidarSimulator:
         hit = np.flatnonzero(np.isfinite(t_hit))
         triangle = result["primitive_ids"].numpy()[hit]
         normals = result["primitive_normals"].numpy()[hit].astype(np.float64)
+        object_id = self.world.triangle_object_id[triangle]
+        if self._has_glass or actors is not None:
+            t_hit, hit, normals, object_id = self._glass_and_actors(
+                t_hit, hit, triangle, normals, object_id, origin, directions_world, actors
+            )
         directions = directions_world.reshape(-1, 3)[hit]
         cos_incidence = np.abs(np.sum(normals * directions, axis=1))
 
@@ -246,7 +279,6 @@ class LidarSimulator:
             & (cos_incidence >= np.cos(np.deg2rad(self.params.max_incidence_deg)))
             & (rng.random(n) >= self.params.dropout_probability)
         )
-        object_id = self.world.triangle_object_id[triangle]
         reflectivity = self._reflectivity[object_id]
         ground = object_id == 0
         if np.any(ground):
@@ -278,10 +310,47 @@ class LidarSimulator:
             index=index,
             scan=scan,
             object_id=kept_ids,
-            object_class=self.world.object_class[kept_ids],
+            object_class=self._object_class[kept_ids],
             column=column.astype(np.uint16),
             T_world_lidar=np.array(T_world_lidar_stamp, dtype=float),
         )
+
+    def _glass_and_actors(
+        self,
+        t_hit: np.ndarray,
+        hit: np.ndarray,
+        triangle: np.ndarray,
+        normals: np.ndarray,
+        object_id: np.ndarray,
+        origin: np.ndarray,
+        directions_world: np.ndarray,
+        actors: PosedActors | None,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The returns once glass absorbs its rays and nearer actors hide the world.
+
+        Returns the per-ray distances (all rays, float32 as the scene's; inf: nothing) and, per
+        returning ray in ascending ray order, its index, normal (float64) and object id.
+        """
+        n_rays = len(t_hit)
+        t_all = np.array(t_hit, dtype=np.float32)
+        normal_all = np.zeros((n_rays, 3))
+        normal_all[hit] = normals
+        id_all = np.full(n_rays, -1, dtype=np.int32)
+        id_all[hit] = object_id
+        if actors is not None:
+            t_actor, normal_actor, id_actor = cast_actor_rays(origin, directions_world, actors)
+            nearer = t_actor < t_all  # also in front of glass, which stays opaque to what lies behind it
+            t_all[nearer] = t_actor[nearer]
+            normal_all[nearer] = normal_actor[nearer]
+            id_all[nearer] = id_actor[nearer]
+        else:
+            nearer = np.zeros(n_rays, dtype=bool)
+        if self._has_glass:
+            glass = np.zeros(n_rays, dtype=bool)
+            glass[hit] = self.world.triangle_glass[triangle]
+            t_all[glass & ~nearer] = np.inf
+        returning = np.flatnonzero(np.isfinite(t_all))
+        return t_all, returning, normal_all[returning], id_all[returning]
 
     def _ground_reflectivity(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
         """Asphalt on the road, a dashed bright centre line, brighter verges elsewhere."""

@@ -11,7 +11,7 @@ complete folder):
 ``novatel_span.log``         NovAtel SPAN-CPT ASCII: #INSPVAXA 20 Hz, #BESTPOSA 1 Hz, CRC-32, CR LF
 ``extrinsics.toml``          ``T_imu_lidar`` (lidar pose in the SPAN vehicle frame)
 ``metadata.json``            scenario, seed, sensor, counts, length, duration, stamps, stops, origin,
-                             revisits, parameters
+                             revisits, world (triangles, objects, glass, moving actors), parameters
 ===========================  ==========================================================================
 """
 
@@ -38,6 +38,7 @@ from lidar3d.sim.scenarios import DEFAULT_SCENARIO, Scenario
 from lidar3d.sim.simulation import Simulation
 from lidar3d.sim.span import SpanParams
 from lidar3d.sim.trajectory import group_revisits
+from lidar3d.sim.world import ObjectClass
 
 __all__ = ["OUTPUT_NAMES", "BagFormat", "SimulationOutputs", "simulate", "write_simulation"]
 
@@ -162,6 +163,8 @@ def _metadata(sim: Simulation, bag_format: BagFormat, n_points: int) -> dict:
             "n_triangles": int(len(sim.world.triangles)),
             "n_objects": sim.world.n_objects,
             "block_kinds": sim.world.block_kind.tolist(),
+            "n_glass_triangles": int(np.count_nonzero(sim.world.triangle_glass)),
+            "moving_actors": _actor_counts(sim),
         },
         "parameters": {
             "scenario": _jsonable(sim.scenario),
@@ -170,6 +173,16 @@ def _metadata(sim: Simulation, bag_format: BagFormat, n_points: int) -> dict:
             "rig": _jsonable(sim.rig),
             "start_time_ns": sim.start_time_ns,
         },
+    }
+
+
+def _actor_counts(sim: Simulation) -> dict:
+    """How many moving cars and pedestrians share the drive (their ids follow the world's objects)."""
+    classes = [] if sim.traffic is None else sim.traffic.object_class.tolist()
+    return {
+        "moving_cars": classes.count(int(ObjectClass.MOVING_CAR)),
+        "pedestrians": classes.count(int(ObjectClass.PEDESTRIAN)),
+        "first_object_id": len(sim.world.object_class),
     }
 
 

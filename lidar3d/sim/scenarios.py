@@ -1,19 +1,33 @@
 """Named simulation scenarios: a street layout, a route through it, and how the vehicle drives it.
 
-==========  =====================================================================================
-name        what it exercises
-==========  =====================================================================================
-loop        ~420 m loop around one block on gently rolling ground, back past the start (default)
-long        ~1.4 km: three revisits (two against the first direction) and a 240 m feature-poor stretch
-hilly       ~500 m loop over hills with slopes up to 8 degrees (roll and pitch from the slope)
-fast        ~700 m at up to 10 m/s with sharp 90-degree corners (strong motion distortion)
-stops       ~400 m town drive at 2-9 m/s, real braking, three 3-6 s stops, vibration, calibration error, jitter
-blind_turn  ~520 m: 240 m of open land at a varying 4.5-8 m/s ending in a 90-degree turn on open land (~30 deg/s)
-==========  =====================================================================================
+============  ===================================================================================
+name          what it exercises
+============  ===================================================================================
+loop          ~420 m loop around one block on gently rolling ground, back past the start (default)
+long          ~1.4 km: three revisits (two against the first direction) and a 240 m feature-poor stretch
+hilly         ~500 m loop over hills with slopes up to 8 degrees (roll and pitch from the slope)
+fast          ~700 m at up to 10 m/s with sharp 90-degree corners (strong motion distortion)
+stops         ~400 m town drive at 2-9 m/s, real braking, three 3-6 s stops, vibration, calibration error,
+              jitter
+blind_turn    ~520 m: 240 m of open land at a varying 4.5-8 m/s ending in a 90-degree turn on open land
+              (~30 deg/s)
+figure_eight  ~800 m figure eight: a 200 m open field at up to 6.5 m/s ending in a sharp right turn
+              (~30 deg/s for ~3 s) with buildings ahead, then straights at a slowly varying 4.6-5.0 m/s;
+              vibration, calibration error, jitter, dropped packets
+city_traffic  ~515 m city loop: moving cars (a lead car pulling away, a follower, oncoming) and
+              pedestrians (walking, crossing), glass facades, a 160 m canyon between two featureless
+              walls (4.6 -> 6.3 -> 5.4 m/s inside it), a 4 s stop, back past the start
+forest_trail  ~500 m rough trail through forest (crowns of scattered leaves that rays pass through),
+              vibration 0.3 deg at 5-20 Hz, a random 2.5-6 m/s speed profile, a stop, slopes up to 4 deg,
+              two hikers
+============  ===================================================================================
 
 The first four drive at the cruise speed on straights, on a rigid body, with a perfect sensor; the
-last two use the vehicle dynamics and sensor imperfections of
-:class:`~lidar3d.sim.trajectory.RouteParams` and :class:`~lidar3d.sim.lidar.LidarParams`.
+others use the vehicle dynamics and sensor imperfections of
+:class:`~lidar3d.sim.trajectory.RouteParams` and :class:`~lidar3d.sim.lidar.LidarParams`;
+``city_traffic`` and ``forest_trail`` also the moving actors (:class:`~lidar3d.sim.actors.TrafficParams`)
+and the materials and degenerate geometry of :class:`~lidar3d.sim.world.WorldParams` (glass,
+foliage, forest blocks) and :class:`~lidar3d.sim.world.StreetLayout` (``wall_edges``).
 
 Route nodes lie on the street grid (``StreetLayout``); consecutive nodes share a street. The vehicle
 drives on the right, ``lane_offset_m`` from the centre line, so a street driven in the opposite
@@ -25,6 +39,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from lidar3d.errors import SimulationError
+from lidar3d.sim.actors import TrafficParams
 from lidar3d.sim.lidar import LidarParams
 from lidar3d.sim.terrain import TerrainParams
 from lidar3d.sim.trajectory import RouteParams
@@ -45,6 +60,7 @@ class Scenario:
         route: driving parameters.
         world: object parameters (including the terrain).
         lidar: measurement model (a :class:`Simulation` given its own ``lidar`` uses that instead).
+        traffic: the moving road users (none by default).
     """
 
     name: str
@@ -54,6 +70,7 @@ class Scenario:
     route: RouteParams = field(default_factory=RouteParams)
     world: WorldParams = field(default_factory=WorldParams)
     lidar: LidarParams = field(default_factory=LidarParams)
+    traffic: TrafficParams = field(default_factory=TrafficParams)
 
     def __post_init__(self) -> None:
         xs, ys = set(self.layout.street_x_m), set(self.layout.street_y_m)
@@ -170,6 +187,100 @@ SCENARIOS: dict[str, Scenario] = {
                 vibration_deg=0.05,
                 vibration_heave_m=0.0003,
             ),
+        ),
+        Scenario(
+            name="figure_eight",
+            description="~800 m figure eight: a 200 m open field ending in a sharp turn, then 4.6-5.0 m/s",
+            layout=StreetLayout(
+                street_x_m=(0.0, 80.0, 280.0),
+                street_y_m=(0.0, 70.0, 120.0),
+                # Open land on both sides of the northern street between x = 80 and 280 m: the field
+                # ends at the right turn at x = 280 m, where the blocks east of it are built up.
+                block_kinds=((2, 2, "open"), (2, 3, "open")),
+            ),
+            route_m=(
+                (30.0, 0.0),
+                (80.0, 0.0),
+                (80.0, 120.0),
+                (280.0, 120.0),
+                (280.0, 70.0),
+                (0.0, 70.0),
+                (0.0, 0.0),
+                (50.0, 0.0),
+            ),
+            route=RouteParams(
+                cruise_speed_mps=6.5,
+                # Faster on the field, then a slowly varying 4.6-5.0 m/s after the turn (about
+                # 370 m along the path).
+                speed_targets=(
+                    (1.0, 5.5),
+                    (150.0, 6.5),
+                    (330.0, 5.0),
+                    (420.0, 4.8),
+                    (520.0, 4.6),
+                    (620.0, 5.0),
+                    (720.0, 4.7),
+                ),
+                speed_transition_m=40.0,
+                vibration_deg=0.1,
+                vibration_heave_m=0.0005,
+            ),
+            lidar=LidarParams(
+                elevation_error_sigma_deg=0.05,
+                range_bias_sigma_m=0.004,
+                stamp_jitter_s=0.001,
+                dropped_wedge_probability=0.02,
+            ),
+        ),
+        Scenario(
+            name="city_traffic",
+            description="~515 m city loop with traffic, pedestrians, glass facades and a 160 m walled canyon",
+            layout=StreetLayout(
+                street_x_m=(0.0, 186.0),
+                street_y_m=(0.0, 60.0),
+                block_kinds=tuple((i, j, "urban") for i in range(3) for j in range(3)),
+                # The northern street between x = 13 and 173 m runs between two featureless walls.
+                wall_edges=((1, 1, "north"), (1, 2, "south")),
+            ),
+            route_m=((30.0, 0.0), (186.0, 0.0), (186.0, 60.0), (0.0, 60.0), (0.0, 0.0), (70.0, 0.0)),
+            route=RouteParams(
+                cruise_speed_mps=6.3,
+                # The canyon runs from about 214 to 374 m along the path.
+                speed_targets=((1.0, 5.2), (190.0, 4.6), (265.0, 6.3), (330.0, 5.4), (400.0, 5.0)),
+                stops=((140.0, 4.0),),  # the stop line before the crossing at x = 186 m
+                max_decel_mps2=2.5,
+                vibration_deg=0.08,
+                vibration_heave_m=0.0004,
+            ),
+            world=WorldParams(glass_facade_probability=0.35, foliage=True),
+            lidar=LidarParams(elevation_error_sigma_deg=0.05, range_bias_sigma_m=0.004, stamp_jitter_s=0.001),
+            traffic=TrafficParams(
+                lead_car=True, followers=1, oncoming_cars=8, walking_pedestrians=12, crossing_pedestrians=3
+            ),
+        ),
+        Scenario(
+            name="forest_trail",
+            description="~500 m rough forest trail: scattered-leaf crowns, 0.3 deg vibration, speed changes",
+            layout=StreetLayout(
+                street_x_m=(0.0, 150.0),
+                street_y_m=(0.0, 100.0),
+                road_half_width_m=2.5,
+                block_kinds=tuple((i, j, "forest") for i in range(3) for j in range(3)),
+            ),
+            route_m=((30.0, 0.0), (150.0, 0.0), (150.0, 100.0), (0.0, 100.0), (0.0, 0.0), (50.0, 0.0)),
+            route=RouteParams(
+                cruise_speed_mps=6.0,
+                min_speed_mps=2.0,
+                random_speed_min_mps=2.5,
+                speed_stretch_m=(30.0, 80.0),
+                stops=((260.0, 3.0),),
+                max_lateral_accel_mps2=2.0,
+                vibration_deg=0.3,
+                vibration_heave_m=0.004,
+            ),
+            world=WorldParams(terrain=TerrainParams(max_slope_deg=4.0), foliage=True),
+            lidar=LidarParams(elevation_error_sigma_deg=0.05, range_bias_sigma_m=0.004, stamp_jitter_s=0.001),
+            traffic=TrafficParams(walking_pedestrians=2, sidewalk_offset_m=4.0),
         ),
     )
 }

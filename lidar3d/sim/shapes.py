@@ -20,6 +20,7 @@ __all__ = [
     "merge",
     "rotation_to_normal",
     "rotation_z",
+    "scattered_leaves",
 ]
 
 Mesh = tuple[np.ndarray, np.ndarray]
@@ -137,6 +138,31 @@ def ellipsoid(radii_m, center_m, n_lat: int = 6, n_lon: int = 10) -> Mesh:
     last = (n_lat - 2) * n_lon
     triangles.append(np.column_stack([np.full(n_lon, south), last + nxt, last + col]))
     return vertices, np.concatenate(triangles).astype(np.int64)
+
+
+def scattered_leaves(radii_m, center_m, n_leaves: int, size_m: tuple[float, float], rng: np.random.Generator) -> Mesh:
+    """``n_leaves`` separate small triangles (leaves) at uniform random places in an ellipsoid crown.
+
+    Each leaf is an equilateral triangle of edge length uniform in ``size_m``, in a random
+    orientation. Rays find the gaps between them: a crown made this way is porous, not solid.
+    """
+    direction = rng.normal(size=(n_leaves, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    radius = rng.random(n_leaves) ** (1.0 / 3.0)  # uniform in the volume
+    centers = direction * radius[:, None] * np.asarray(radii_m, float) + np.asarray(center_m, float)
+    normal = rng.normal(size=(n_leaves, 3))
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    helper = np.where(np.abs(normal[:, :1]) < 0.9, [[1.0, 0.0, 0.0]], [[0.0, 1.0, 0.0]])
+    u = np.cross(normal, helper)
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    v = np.cross(normal, u)
+    circumradius = rng.uniform(*size_m, n_leaves) / np.sqrt(3.0)
+    spin = rng.uniform(0.0, 2.0 * np.pi, n_leaves)
+    angles = spin[:, None] + np.array([0.0, 2.0, 4.0]) * (np.pi / 3.0)  # (n, 3) corner angles
+    corners = centers[:, None, :] + circumradius[:, None, None] * (
+        np.cos(angles)[..., None] * u[:, None, :] + np.sin(angles)[..., None] * v[:, None, :]
+    )
+    return corners.reshape(-1, 3), np.arange(3 * n_leaves, dtype=np.int64).reshape(n_leaves, 3)
 
 
 def heightfield(x_m: np.ndarray, y_m: np.ndarray, z_m: np.ndarray) -> Mesh:

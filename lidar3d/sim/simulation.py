@@ -8,6 +8,7 @@ Typical use from Python (nothing is written to disk)::
         s.scan            # lidar3d.records.Scan, exactly what the bag holds
         s.object_id       # (N,) what each point hit, 0 = ground
         s.object_class    # (N,) ObjectClass of that object
+        s.dynamic_mask    # (N,) on a moving car or a pedestrian
     sim.ground_truth      # Trajectory of the lidar at every scan stamp
     sim.T_world_lidar_at(stamps_ns)  # true pose at any time, e.g. per point for deskewing checks
 
@@ -32,6 +33,7 @@ import numpy as np
 from lidar3d.errors import SimulationError
 from lidar3d.records import Trajectory
 from lidar3d.sensors import SensorModel, sensor_model
+from lidar3d.sim.actors import Traffic
 from lidar3d.sim.lidar import LidarParams, LidarSimulator, SimulatedScan, StampMode
 from lidar3d.sim.rig import RigParams
 from lidar3d.sim.scenarios import DEFAULT_SCENARIO, Scenario, get_scenario
@@ -91,6 +93,10 @@ class Simulation:
         self.start_time_ns = int(start_time_ns)
         self.world = generate_world(self.scenario.layout, self.scenario.world, self.seed)
         self.motion = VehicleMotion(self.scenario.route_m, self.world.terrain, self.scenario.route, self.seed)
+        self.traffic: Traffic | None = None
+        if self.scenario.traffic.any:
+            first_actor_id = len(self.world.object_class)
+            self.traffic = Traffic(self.motion, self.world.terrain, self.scenario.traffic, self.seed, first_actor_id)
         self.scan_period_ns = int(round(1e9 / self.sensor.rotation_hz))
         jitter_s = self.lidar_params.stamp_jitter_s
         self._route_lead_s = jitter_s  # route time of the first sweep start
@@ -153,7 +159,8 @@ class Simulation:
     def lidar(self) -> LidarSimulator:
         """The ray caster (built on first use: it loads Open3D and the scene)."""
         if self._lidar is None:
-            self._lidar = LidarSimulator(self.world, self.sensor, self.lidar_params, self.seed)
+            actor_classes = None if self.traffic is None else self.traffic.object_class
+            self._lidar = LidarSimulator(self.world, self.sensor, self.lidar_params, self.seed, actor_classes)
         return self._lidar
 
     def scan(self, index: int) -> SimulatedScan:
@@ -167,7 +174,8 @@ class Simulation:
         poses = self.motion.pose_at(t_s) @ self.T_imu_lidar
         rng = np.random.default_rng([self.seed, _SCAN_STREAM, index])
         stamp_ns = int(self.stamps_ns[index])
-        return lidar.cast(index, stamp_ns, poses, rng, self.T_world_lidar_at(stamp_ns)[0])
+        actors = None if self.traffic is None else self.traffic.posed_at(t_s, poses[:, :3, 3], lidar.max_range_m)
+        return lidar.cast(index, stamp_ns, poses, rng, self.T_world_lidar_at(stamp_ns)[0], actors)
 
     def scans(self, start: int = 0, stop: int | None = None) -> Iterator[SimulatedScan]:
         """Simulate sweeps ``start`` to ``stop - 1`` lazily, in order."""

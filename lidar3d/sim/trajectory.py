@@ -112,15 +112,15 @@ class RouteParams:
             raise SimulationError("route vibration amplitudes must be >= 0 and vibration_full_speed_mps > 0")
         if not 0.0 < self.vibration_band_hz[0] < self.vibration_band_hz[1]:
             raise SimulationError("route vibration_band_hz must be 0 < lowest < highest")
+        if min(self.max_lateral_accel_mps2, self.max_accel_mps2, self.max_decel_mps2) <= 0.0:
+            raise SimulationError("route acceleration limits must be positive")
+        if self.corner_radius_m <= abs(self.lane_offset_m):
+            raise SimulationError("route corner_radius_m must exceed |lane_offset_m|")
 
     @property
     def vibrates(self) -> bool:
         """Whether the body moves on its suspension."""
         return self.vibration_deg > 0.0 or self.vibration_heave_m > 0.0
-        if min(self.max_lateral_accel_mps2, self.max_accel_mps2, self.max_decel_mps2) <= 0.0:
-            raise SimulationError("route acceleration limits must be positive")
-        if self.corner_radius_m <= abs(self.lane_offset_m):
-            raise SimulationError("route corner_radius_m must exceed |lane_offset_m|")
 
 
 def _rounded_polyline(nodes_m: np.ndarray, radius_m: float) -> np.ndarray:
@@ -222,6 +222,7 @@ class VehicleMotion:
         t = np.insert(arrive, stop_index + 1, arrive[stop_index] + holds[stop_index])
         u = np.insert(u, stop_index + 1, u[stop_index])
         self._t_knots = t
+        self._u_knots = u
         self._v_knots = np.insert(v, stop_index + 1, 0.0)
         self.stop_intervals_s = tuple((float(arrive[k]), float(arrive[k] + holds[k])) for k in stop_index)
         self.duration_s = float(t[-1])
@@ -300,6 +301,32 @@ class VehicleMotion:
             poses[:, :3, :3] = poses[:, :3, :3] @ body
             poses[:, :3, 3] += heave[:, None] * up
         return poses
+
+    def path_position_at(self, t_s) -> np.ndarray:
+        """(N,) path position (m along the driven lane from the route start) at route times ``t_s``."""
+        return np.asarray(self._u_of_t(np.atleast_1d(self._check_times(t_s))), dtype=float)
+
+    def time_at_path_position(self, position_m) -> np.ndarray:
+        """(N,) first route time at which the vehicle reaches each path position (clipped to the path)."""
+        return np.interp(np.clip(np.atleast_1d(position_m), 0.0, self.length_m), self._u_knots, self._t_knots)
+
+    def lane_xy(self, position_m, right_m=0.0) -> tuple[np.ndarray, np.ndarray]:
+        """Points beside the driven lane, for other road users.
+
+        Args:
+            position_m: (N,) path positions; beyond either end of the path the lane runs on straight.
+            right_m: distance to the right of the driven lane (negative: to the left), scalar or (N,).
+
+        Returns:
+            (N, 2) world positions and (N, 2) unit headings of the lane there.
+        """
+        u = np.atleast_1d(np.asarray(position_m, dtype=float))
+        inside = np.clip(u, 0.0, self.length_m)
+        heading = self._path_d1(inside)
+        heading /= np.linalg.norm(heading, axis=1, keepdims=True)
+        xy = self._path(inside) + heading * (u - inside)[:, None]
+        right = np.column_stack([heading[:, 1], -heading[:, 0]])
+        return xy + np.asarray(right_m, dtype=float)[..., None] * right, heading
 
     def profile_speed_at(self, t_s) -> np.ndarray:
         """(N,) speed of the planned profile (m/s) at route times ``t_s``, linear between path samples; 0 at stops."""

@@ -3,10 +3,19 @@
 A world is a grid of streets (every grid line is a street crossing the whole world) and the blocks
 between them. Each block has a kind that decides what lines its street edges: ``urban`` (buildings of
 varied footprints and heights close to the street), ``residential`` (gabled houses set back behind
-fences or walls, trees in the yards), ``park`` (trees, low walls) or ``open`` (bare ground and a pole
-every ~90 m: the feature-poor stretch). Every edge except open ones also gets lamp poles, street
+fences or walls, trees in the yards), ``park`` (trees, low walls), ``open`` (bare ground and a pole
+every ~90 m: the feature-poor stretch) or ``forest`` (trees close to the street and dense inside, no
+poles or cars; never drawn at random). Every edge except open ones also gets lamp poles, street
 trees and parked cars. Nothing is placed inside a street corridor, so the vehicle routes, which
 follow the streets, never drive through an object.
+
+Options, all off by default (a world without them is exactly the world this module always made):
+``StreetLayout.wall_edges`` replaces chosen street edges with one long featureless wall (two facing
+walls make a corridor street, a degenerate geometry along the street); ``WorldParams.glass_facade_probability``
+makes the street facade of that share of buildings glass (``World.triangle_glass``: the sensor gets no
+return from it); ``WorldParams.foliage`` builds tree crowns as scattered small leaf triangles with gaps
+that rays pass through, instead of one closed ellipsoid. Their random draws come from streams of
+their own, so switching one on leaves every other object where it was.
 
 The world frame is the local ENU frame of the simulation (x east, y north, z up, metres). Generation
 is deterministic for a given layout, parameters and seed.
@@ -23,7 +32,19 @@ from lidar3d.errors import SimulationError
 from lidar3d.sim import shapes
 from lidar3d.sim.terrain import Terrain, TerrainParams, make_terrain
 
-__all__ = ["BlockKind", "ObjectClass", "StreetLayout", "World", "WorldParams", "generate_world"]
+__all__ = [
+    "DYNAMIC_CLASSES",
+    "BlockKind",
+    "EdgeSide",
+    "ObjectClass",
+    "StreetLayout",
+    "World",
+    "WorldParams",
+    "generate_world",
+]
+
+_GLASS_STREAM = 0x61A55
+_FOLIAGE_STREAM = 0xF011
 
 
 class BlockKind(str, Enum):
@@ -33,10 +54,24 @@ class BlockKind(str, Enum):
     RESIDENTIAL = "residential"
     PARK = "park"
     OPEN = "open"
+    FOREST = "forest"
+
+
+class EdgeSide(str, Enum):
+    """Which side of a block an edge lies on (the street bordering it runs along that side)."""
+
+    SOUTH = "south"
+    NORTH = "north"
+    WEST = "west"
+    EAST = "east"
 
 
 class ObjectClass(IntEnum):
-    """Class of what a ray hit; object id 0 is always the ground."""
+    """Class of what a ray hit; object id 0 is always the ground.
+
+    ``MOVING_CAR`` and ``PEDESTRIAN`` are the moving actors of :mod:`~lidar3d.sim.actors` (not part
+    of the world mesh; their ids follow the world's objects); ``CAR`` is a parked car.
+    """
 
     GROUND = 0
     BUILDING = 1
@@ -45,6 +80,11 @@ class ObjectClass(IntEnum):
     POLE = 4
     TREE = 5
     CAR = 6
+    MOVING_CAR = 7
+    PEDESTRIAN = 8
+
+
+DYNAMIC_CLASSES = frozenset({ObjectClass.MOVING_CAR, ObjectClass.PEDESTRIAN})
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +99,9 @@ class StreetLayout:
         block_kinds: ``(i, j, kind)`` overrides; cell (i, j) lies between x grid values i-1 and i
             (cell 0 is the western margin) and y grid values j-1 and j. Cells not listed get a
             seeded random kind among urban, residential and park.
+        wall_edges: ``(i, j, side)`` edges of cells (``side`` an :class:`EdgeSide` value) that hold
+            nothing but one featureless wall along the whole edge (no furniture, no parked cars);
+            the two edges facing each other across a street make a corridor street.
     """
 
     street_x_m: tuple[float, ...]
@@ -66,6 +109,7 @@ class StreetLayout:
     margin_m: float = 60.0
     road_half_width_m: float = 5.0
     block_kinds: tuple[tuple[int, int, str], ...] = ()
+    wall_edges: tuple[tuple[int, int, str], ...] = ()
 
     def __post_init__(self) -> None:
         for name in ("street_x_m", "street_y_m"):
@@ -76,6 +120,12 @@ class StreetLayout:
             BlockKind(kind)
             if not (0 <= i <= len(self.street_x_m) and 0 <= j <= len(self.street_y_m)):
                 raise SimulationError(f"StreetLayout.block_kinds: cell ({i}, {j}) is outside the grid")
+        for i, j, side in self.wall_edges:
+            if side not in [s.value for s in EdgeSide]:
+                known = ", ".join(s.value for s in EdgeSide)
+                raise SimulationError(f"StreetLayout.wall_edges: side must be one of {known}; got {side!r}")
+            if not (0 <= i <= len(self.street_x_m) and 0 <= j <= len(self.street_y_m)):
+                raise SimulationError(f"StreetLayout.wall_edges: cell ({i}, {j}) is outside the grid")
 
     @property
     def extent_m(self) -> tuple[float, float, float, float]:
@@ -127,6 +177,25 @@ class WorldParams:
     car_probability: float = 0.3
     open_pole_spacing_m: float = 90.0
     kind_weights: tuple[float, float, float] = (0.5, 0.3, 0.2)  # urban, residential, park
+    forest_tree_spacing_m: float = 6.0  # along a forest edge
+    forest_edge_offset_m: tuple[float, float] = (6.5, 12.0)  # street centre line to a forest edge tree
+    forest_tree_area_m2: float = 60.0  # one tree per this much forest area
+    wall_edge_offset_m: float = 8.0  # street centre line to the face of a featureless edge wall
+    wall_edge_height_m: tuple[float, float] = (10.0, 16.0)
+    glass_facade_probability: float = 0.0  # share of buildings whose street facade is glass (no return)
+    foliage: bool = False  # crowns of scattered leaf triangles instead of closed ellipsoids
+    leaf_density_per_m3: float = 5.0  # leaves per cubic metre of crown
+    leaf_size_m: tuple[float, float] = (0.25, 0.5)  # edge length of a leaf triangle
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.glass_facade_probability <= 1.0:
+            raise SimulationError("world glass_facade_probability must be in [0, 1]")
+        if min(self.forest_tree_spacing_m, self.forest_tree_area_m2, self.forest_edge_offset_m[0]) <= 0.0:
+            raise SimulationError("world forest spacing, area and edge offset must be positive")
+        if self.leaf_density_per_m3 <= 0.0 or not 0.0 < self.leaf_size_m[0] <= self.leaf_size_m[1]:
+            raise SimulationError("world leaf_density_per_m3 must be > 0 and leaf_size_m 0 < smallest <= largest")
+        if self.wall_edge_offset_m <= 5.0 or not 0.0 < self.wall_edge_height_m[0] <= self.wall_edge_height_m[1]:
+            raise SimulationError("world wall_edge_offset_m must exceed 5 m and wall_edge_height_m be 0 < low <= high")
 
 
 @dataclass(frozen=True, slots=True)
@@ -137,6 +206,7 @@ class World:
         vertices_m: (V, 3) float64 world-frame vertices.
         triangles: (T, 3) int32 vertex indices.
         triangle_object_id: (T,) int32 object id of each triangle (0 = ground).
+        triangle_glass: (T,) bool: the triangle is glass (the sensor gets no return from it).
         object_class: (K + 1,) uint8 :class:`ObjectClass` of each object id.
         object_center_m: (K + 1, 3) float64 centroid of each object's vertices (ground: extent centre).
         block_kind: (nx + 1, ny + 1) array of :class:`BlockKind` values per cell.
@@ -147,6 +217,7 @@ class World:
     vertices_m: np.ndarray
     triangles: np.ndarray
     triangle_object_id: np.ndarray
+    triangle_glass: np.ndarray
     object_class: np.ndarray
     object_center_m: np.ndarray
     block_kind: np.ndarray
@@ -158,6 +229,8 @@ class World:
             raise ValueError("World.vertices_m must be (V, 3)")
         if self.triangles.shape != (len(self.triangle_object_id), 3):
             raise ValueError("World.triangles must be (T, 3) with one object id per triangle")
+        if self.triangle_glass.shape != self.triangle_object_id.shape:
+            raise ValueError("World.triangle_glass must be (T,)")
         if self.object_center_m.shape != (len(self.object_class), 3):
             raise ValueError("World.object_center_m must be (K + 1, 3)")
 
@@ -174,18 +247,27 @@ class World:
 class _Builder:
     """Accumulates object meshes and assigns object ids in insertion order."""
 
-    def __init__(self, terrain: Terrain) -> None:
+    def __init__(self, terrain: Terrain, params: WorldParams, seed: int) -> None:
         self.terrain = terrain
         self.meshes: list[shapes.Mesh] = []
+        self.glass: list[np.ndarray | None] = []  # per mesh: (T,) bool glass triangles, None for none
         self.ids: list[int] = []
         self.classes: list[int] = [int(ObjectClass.GROUND)]
         self.centers: list[np.ndarray] = []
+        self.glass_probability = params.glass_facade_probability
+        self.glass_rng = np.random.default_rng([int(seed), _GLASS_STREAM])
+        self.foliage_rng = np.random.default_rng([int(seed), _FOLIAGE_STREAM]) if params.foliage else None
+        self.leaf_density_per_m3 = params.leaf_density_per_m3
+        self.leaf_size_m = params.leaf_size_m
 
-    def add(self, parts: list[shapes.Mesh], object_class: ObjectClass) -> None:
+    def add(
+        self, parts: list[shapes.Mesh], object_class: ObjectClass, glass: list[np.ndarray | None] | None = None
+    ) -> None:
         object_id = len(self.classes)
         self.classes.append(int(object_class))
-        for vertices, triangles in parts:
+        for k, (vertices, triangles) in enumerate(parts):
             self.meshes.append((vertices, triangles))
+            self.glass.append(None if glass is None else glass[k])
             self.ids.append(object_id)
         self.centers.append(np.mean(np.vstack([v for v, _ in parts]), axis=0))
 
@@ -197,7 +279,8 @@ class _Builder:
 class _Edge:
     """One side of a street bordering a block: ``point(s, o)`` is ``s`` along, ``o`` into the block."""
 
-    def __init__(self, origin, direction, inward, length_m: float) -> None:
+    def __init__(self, side: EdgeSide, origin, direction, inward, length_m: float) -> None:
+        self.side = side
         self.origin = np.asarray(origin, float)
         self.direction = np.asarray(direction, float)
         self.inward = np.asarray(inward, float)
@@ -219,14 +302,18 @@ def _edges_of_cell(layout: StreetLayout, i: int, j: int) -> list[_Edge]:
     x0, x1, y0, y1 = layout.cell_bounds_m(i, j)
     edges = []
     if j > 0:  # street along the southern side
-        edges.append(_Edge((x0, y0), (1.0, 0.0), (0.0, 1.0), x1 - x0))
+        edges.append(_Edge(EdgeSide.SOUTH, (x0, y0), (1.0, 0.0), (0.0, 1.0), x1 - x0))
     if j < len(layout.street_y_m):  # northern side
-        edges.append(_Edge((x1, y1), (-1.0, 0.0), (0.0, -1.0), x1 - x0))
+        edges.append(_Edge(EdgeSide.NORTH, (x1, y1), (-1.0, 0.0), (0.0, -1.0), x1 - x0))
     if i > 0:  # western side
-        edges.append(_Edge((x0, y1), (0.0, -1.0), (1.0, 0.0), y1 - y0))
+        edges.append(_Edge(EdgeSide.WEST, (x0, y1), (0.0, -1.0), (1.0, 0.0), y1 - y0))
     if i < len(layout.street_x_m):  # eastern side
-        edges.append(_Edge((x1, y0), (0.0, 1.0), (-1.0, 0.0), y1 - y0))
+        edges.append(_Edge(EdgeSide.EAST, (x1, y0), (0.0, 1.0), (-1.0, 0.0), y1 - y0))
     return edges
+
+
+# The street facade of a box from :func:`shapes.box` rotated to an edge's yaw: its y- face (triangles 4 and 5).
+_STREET_FACADE = np.isin(np.arange(12), (4, 5))
 
 
 def _building(builder: _Builder, edge: _Edge, along: float, frontage: float, params: WorldParams, rng) -> None:
@@ -250,7 +337,10 @@ def _building(builder: _Builder, edge: _Edge, along: float, frontage: float, par
         back = (1.0 - scale) * 0.5 * depth * rng.uniform(0.3, 1.0)
         tier_center = edge.point(along, offset + back)
         parts.append(shapes.box((frontage * scale, depth * scale, tier), (*tier_center, z_top + 0.5 * tier), rotation))
-    builder.add(parts, ObjectClass.BUILDING)
+    glass = None
+    if builder.glass_probability > 0.0 and builder.glass_rng.random() < builder.glass_probability:
+        glass = [_STREET_FACADE.copy() for _ in parts]  # the local y- faces look onto the street
+    builder.add(parts, ObjectClass.BUILDING, glass)
 
 
 def _house(builder: _Builder, edge: _Edge, along: float, frontage: float, params: WorldParams, rng) -> None:
@@ -290,7 +380,13 @@ def _tree(builder: _Builder, xy: np.ndarray, rng) -> None:
     z0 = float(builder.terrain.height_m(xy[0], xy[1])) - 0.3
     top = z0 + 0.3 + trunk_height
     trunk = shapes.cylinder(trunk_radius, z0, top + 0.3 * crown, xy, n_sides=10)
-    canopy = shapes.ellipsoid((crown, crown, 0.8 * crown), (xy[0], xy[1], top + 0.7 * crown))
+    radii, center = (crown, crown, 0.8 * crown), (xy[0], xy[1], top + 0.7 * crown)
+    if builder.foliage_rng is None:
+        canopy = shapes.ellipsoid(radii, center)
+    else:
+        volume = 4.0 / 3.0 * np.pi * float(np.prod(radii))
+        n_leaves = max(1, int(round(volume * builder.leaf_density_per_m3)))
+        canopy = shapes.scattered_leaves(radii, center, n_leaves, builder.leaf_size_m, builder.foliage_rng)
     builder.add([trunk, canopy], ObjectClass.TREE)
 
 
@@ -410,12 +506,14 @@ def _park_edge(builder: _Builder, edge: _Edge, lo: float, hi: float, params: Wor
     _street_furniture(builder, edge, lo, hi, params, rng, trees=False)
 
 
-def _park_interior(builder: _Builder, layout: StreetLayout, bounds, params: WorldParams, rng) -> None:
+def _park_interior(
+    builder: _Builder, layout: StreetLayout, bounds, params: WorldParams, rng, tree_area_m2: float
+) -> None:
     x0, x1, y0, y1 = bounds
     inset = params.corner_clearance_m - 1.0
     if x1 - x0 <= 2 * inset or y1 - y0 <= 2 * inset:
         return
-    n = int((x1 - x0 - 2 * inset) * (y1 - y0 - 2 * inset) / params.park_tree_area_m2)
+    n = int((x1 - x0 - 2 * inset) * (y1 - y0 - 2 * inset) / tree_area_m2)
     xy = np.column_stack([rng.uniform(x0 + inset, x1 - inset, n), rng.uniform(y0 + inset, y1 - inset, n)])
     keep = layout.distance_to_street_m(xy[:, 0], xy[:, 1]) > 10.0
     for point in xy[keep]:
@@ -429,11 +527,25 @@ def _open_edge(builder: _Builder, edge: _Edge, lo: float, hi: float, params: Wor
         along += params.open_pole_spacing_m * rng.uniform(0.8, 1.2)
 
 
+def _forest_edge(builder: _Builder, edge: _Edge, lo: float, hi: float, params: WorldParams, rng) -> None:
+    along = lo + rng.uniform(0.0, params.forest_tree_spacing_m)
+    while along < hi:
+        _tree(builder, edge.point(along, rng.uniform(*params.forest_edge_offset_m)), rng)
+        along += params.forest_tree_spacing_m * rng.uniform(0.6, 1.4)
+
+
+def _featureless_wall_edge(builder: _Builder, edge: _Edge, lo: float, hi: float, params: WorldParams, rng) -> None:
+    """One wall along the whole edge, nothing else: a side of a corridor street."""
+    height = rng.uniform(*params.wall_edge_height_m)
+    _wall(builder, edge, lo, hi, params.wall_edge_offset_m + 0.125, height)
+
+
 _EDGE_BUILDERS = {
     BlockKind.URBAN: _urban_edge,
     BlockKind.RESIDENTIAL: _residential_edge,
     BlockKind.PARK: _park_edge,
     BlockKind.OPEN: _open_edge,
+    BlockKind.FOREST: _forest_edge,
 }
 
 
@@ -441,8 +553,9 @@ def generate_world(layout: StreetLayout, params: WorldParams, seed: int) -> Worl
     """Generate the world for ``layout``; the same arguments always give the same world."""
     rng = np.random.default_rng([int(seed), 0x5701D])
     terrain = make_terrain(params.terrain, layout.extent_m, rng)
-    builder = _Builder(terrain)
+    builder = _Builder(terrain, params, seed)
     overrides = {(i, j): BlockKind(kind) for i, j, kind in layout.block_kinds}
+    walled = {(i, j, EdgeSide(side)) for i, j, side in layout.wall_edges}
     random_kinds = (BlockKind.URBAN, BlockKind.RESIDENTIAL, BlockKind.PARK)
     weights = np.asarray(params.kind_weights, float) / np.sum(params.kind_weights)
     nx, ny = len(layout.street_x_m) + 1, len(layout.street_y_m) + 1
@@ -456,9 +569,14 @@ def generate_world(layout: StreetLayout, params: WorldParams, seed: int) -> Worl
                 lo, hi = params.corner_clearance_m, edge.length_m - params.corner_clearance_m
                 if hi - lo < 5.0:
                     continue
-                _EDGE_BUILDERS[kind](builder, edge, lo, hi, params, rng)
+                if (i, j, edge.side) in walled:
+                    _featureless_wall_edge(builder, edge, lo, hi, params, rng)
+                else:
+                    _EDGE_BUILDERS[kind](builder, edge, lo, hi, params, rng)
             if kind is BlockKind.PARK:
-                _park_interior(builder, layout, layout.cell_bounds_m(i, j), params, rng)
+                _park_interior(builder, layout, layout.cell_bounds_m(i, j), params, rng, params.park_tree_area_m2)
+            elif kind is BlockKind.FOREST:
+                _park_interior(builder, layout, layout.cell_bounds_m(i, j), params, rng, params.forest_tree_area_m2)
     gx, gy = terrain.grid_axes_m()
     gxx, gyy = np.meshgrid(gx, gy)
     ground = shapes.heightfield(gx, gy, terrain.height_m(gxx, gyy))
@@ -468,6 +586,10 @@ def generate_world(layout: StreetLayout, params: WorldParams, seed: int) -> Worl
         [np.zeros(n_ground, dtype=np.int32)]
         + [np.full(len(t), object_id, dtype=np.int32) for (_, t), object_id in zip(builder.meshes, builder.ids)]
     )
+    glass = np.concatenate(
+        [np.zeros(n_ground, dtype=bool)]
+        + [np.zeros(len(t), dtype=bool) if g is None else g for (_, t), g in zip(builder.meshes, builder.glass)]
+    )
     x0, x1, y0, y1 = layout.extent_m
     ground_center = np.array([0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0])
     centers = np.vstack([ground_center] + builder.centers)
@@ -475,6 +597,7 @@ def generate_world(layout: StreetLayout, params: WorldParams, seed: int) -> Worl
         vertices_m=vertices,
         triangles=triangles.astype(np.int32),
         triangle_object_id=object_ids,
+        triangle_glass=glass,
         object_class=np.asarray(builder.classes, dtype=np.uint8),
         object_center_m=centers,
         block_kind=kinds,
