@@ -438,7 +438,8 @@ class MotionConfig:
     depart from it over one scan interval dt: a translation sigma of ``accel * dt^2`` along each
     body axis and a rotation sigma of ``angular_accel * dt^2`` about each. Sideways and vertical
     apply once the motion has shown it is a vehicle's (driving along one body axis); until then
-    every translation axis takes the forward value.
+    every translation axis takes the forward value. Where the recent prediction errors of
+    well-constrained scans (root mean square per axis) are larger, they are used instead.
     """
 
     forward_accel_mps2: float = _key(2.0, _positive(100.0, "m/s^2"), "speed change along the direction of travel")
@@ -448,6 +449,9 @@ class MotionConfig:
     tilt_accel_rad_s2: float = _key(0.5, _positive(1000.0, "rad/s^2"), "roll and pitch rate change (vibration)")
     min_sigma_m: float = _key(0.002, _positive(1.0, "m"), "translation sigma of one step is at least this")
     min_sigma_deg: float = _key(0.02, _positive(10.0, "deg"), "rotation sigma of one step is at least this")
+    innovation_smoothing: float = _key(
+        0.2, _FRACTION, "weight of the newest prediction error in the running mean that widens the prior"
+    )
 
 
 @dataclass(frozen=True, slots=True)

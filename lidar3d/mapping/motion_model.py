@@ -37,6 +37,7 @@ predicted velocity, which the registration absorbs.
 from __future__ import annotations
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from lidar3d.config import MotionConfig
 from lidar3d.mapping.registration import PosePrior
@@ -80,6 +81,7 @@ class MotionModel:
         self._constrained = 0
         self.last_well_constrained = False
         self._smoothed: np.ndarray | None = None
+        self._innovation_sq = np.zeros(6)  # running mean squared prior error: basis x, y, z, tilt, tilt, yaw
 
     def update(self, twist: np.ndarray, well_constrained: bool, heading_observed: bool = True) -> None:
         """Take the twist (v m/s, w rad/s, body frame) estimated for the latest scan.
@@ -136,36 +138,49 @@ class MotionModel:
         sideways or vertical slip); the plain twist while that direction is not established."""
         return self._on_axis(self.twist)
 
-    def prior(self, T_world_previous: np.ndarray, dt_s: float, config: MotionConfig) -> PosePrior:
-        """The pose ``dt_s`` after ``T_world_previous`` (4,4) under :meth:`vehicle_twist`, with the
-        information its bounded accelerations allow (see :class:`~lidar3d.config.MotionConfig`)."""
-        T_mean = T_world_previous @ exp_se3(self.vehicle_twist() * dt_s)
-        dt2 = dt_s * dt_s
-        forward = max(config.forward_accel_mps2 * dt2, config.min_sigma_m)
+    def _basis(self) -> np.ndarray:
+        """(3,3) columns: direction of travel, sideways, up (sensor frame); identity while the
+        direction is not established."""
         axis = self.forward_axis
         if axis is None:
-            basis = np.eye(3)
+            return np.eye(3)
+        lateral = np.cross([0.0, 0.0, 1.0], axis)
+        if np.linalg.norm(lateral) < 1e-6:  # travelling along the sensor's z: any perpendicular
+            lateral = np.cross([1.0, 0.0, 0.0], axis)
+        lateral /= np.linalg.norm(lateral)
+        return np.column_stack([axis, lateral, np.cross(axis, lateral)])
+
+    def learn_innovation(self, prior: PosePrior, T_world_registered: np.ndarray, smoothing: float) -> None:
+        """Take how far a well-constrained registration (4,4) landed from the ``prior`` mean: its
+        running mean square per body axis widens the prior where the model has been predicting
+        badly (entering a turn, braking hard), by ``smoothing`` (weight of the newest)."""
+        delta = np.linalg.inv(prior.T_target_source) @ T_world_registered
+        rotation = Rotation.from_matrix(delta[:3, :3]).as_rotvec()
+        sample = np.r_[self._basis().T @ delta[:3, 3], rotation] ** 2
+        tilt = 0.5 * (sample[3] + sample[4])
+        sample[3] = sample[4] = tilt
+        self._innovation_sq = (1.0 - smoothing) * self._innovation_sq + smoothing * sample
+
+    def prior(self, T_world_previous: np.ndarray, dt_s: float, config: MotionConfig) -> PosePrior:
+        """The pose ``dt_s`` after ``T_world_previous`` (4,4) under :meth:`vehicle_twist`, with the
+        information its bounded accelerations allow (see :class:`~lidar3d.config.MotionConfig`),
+        widened to the recent root mean square prediction error where that is larger."""
+        T_mean = T_world_previous @ exp_se3(self.vehicle_twist() * dt_s)
+        dt2 = dt_s * dt_s
+        forward = config.forward_accel_mps2 * dt2
+        if self.forward_axis is None:
             sigma_t = np.full(3, forward)
         else:
-            lateral = np.cross([0.0, 0.0, 1.0], axis)
-            if np.linalg.norm(lateral) < 1e-6:  # travelling along the sensor's z: any perpendicular
-                lateral = np.cross([1.0, 0.0, 0.0], axis)
-            lateral /= np.linalg.norm(lateral)
-            basis = np.column_stack([axis, lateral, np.cross(axis, lateral)])
-            sigma_t = np.array(
-                [
-                    forward,
-                    max(config.lateral_accel_mps2 * dt2, config.min_sigma_m),
-                    max(config.vertical_accel_mps2 * dt2, config.min_sigma_m),
-                ]
-            )
-        axes_world = T_mean[:3, :3] @ basis
+            sigma_t = np.array([forward, config.lateral_accel_mps2 * dt2, config.vertical_accel_mps2 * dt2])
+        tilt = config.tilt_accel_rad_s2 * dt2
+        sigma_r = np.array([tilt, tilt, config.yaw_accel_rad_s2 * dt2])
+        sigma = np.maximum(np.r_[sigma_t, sigma_r], np.sqrt(self._innovation_sq))
+        sigma[:3] = np.maximum(sigma[:3], config.min_sigma_m)
+        sigma[3:] = np.maximum(sigma[3:], np.radians(config.min_sigma_deg))
+        axes_world = T_mean[:3, :3] @ self._basis()
         information = np.zeros((6, 6))
-        information[:3, :3] = axes_world @ np.diag(sigma_t**-2.0) @ axes_world.T
-        min_rad = np.radians(config.min_sigma_deg)
-        tilt = max(config.tilt_accel_rad_s2 * dt2, min_rad)
-        yaw = max(config.yaw_accel_rad_s2 * dt2, min_rad)
-        information[3:, 3:] = np.diag(np.array([tilt, tilt, yaw]) ** -2.0)
+        information[:3, :3] = axes_world @ np.diag(sigma[:3] ** -2.0) @ axes_world.T
+        information[3:, 3:] = np.diag(sigma[3:] ** -2.0)
         return PosePrior(T_mean, information)
 
     def _on_axis(self, twist: np.ndarray) -> np.ndarray:

@@ -176,6 +176,8 @@ class Tracker:
             refinement = self._refine(deskewed, previous, step, dt_s)
         T_world_lidar = refinement.T_world_lidar
         well_constrained = refinement.registration is not None and refinement.registration.degenerate_axes == 0
+        if well_constrained and refinement.prior is not None:
+            self._motion.learn_innovation(refinement.prior, T_world_lidar, self._vehicle.innovation_smoothing)
         if previous is not None:
             self._motion.update(
                 twist_between(previous.T_world_lidar, T_world_lidar, dt_s),
