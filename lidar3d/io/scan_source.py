@@ -196,19 +196,7 @@ class ScanSource:
         for opened in inputs:
             opened.close()
         if self._stats.n_scans:
-            logger.info(
-                "read %d scans from %s: %d points kept; dropped %d nearer than %.2f m, %d non-finite, "
-                "%d with absurd coordinates, %d with outlier times; %d scans timed from the azimuth",
-                self._stats.n_scans,
-                self.label,
-                self._stats.n_points_kept,
-                self._stats.n_below_min_range,
-                self.min_range_m,
-                self._stats.n_nonfinite,
-                self._stats.n_absurd_coordinates,
-                self._stats.n_outlier_times,
-                self._stats.n_scans_times_from_azimuth,
-            )
+            _log_read_totals(self._stats, self.label, self.min_range_m)
 
     def __enter__(self) -> ScanSource:
         return self.open()
@@ -316,6 +304,23 @@ class ScanSource:
         """Every scan of the lidar topic in log-time order (see :meth:`scans`)."""
         for _index, scan in self.scans():
             yield scan
+
+
+def _log_read_totals(stats: ReadStats, label: str, min_range_m: float) -> None:
+    """The info line about what reading ``label`` kept and dropped."""
+    logger.info(
+        "read %d scans from %s: %d points kept; dropped %d nearer than %.2f m, %d non-finite, "
+        "%d with absurd coordinates, %d with outlier times; %d scans timed from the azimuth",
+        stats.n_scans,
+        label,
+        stats.n_points_kept,
+        stats.n_below_min_range,
+        min_range_m,
+        stats.n_nonfinite,
+        stats.n_absurd_coordinates,
+        stats.n_outlier_times,
+        stats.n_scans_times_from_azimuth,
+    )
 
 
 def open_scan_source(paths: str | Path | Sequence[str | Path], config: Any = None) -> ScanSource:
