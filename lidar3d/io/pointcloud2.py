@@ -28,9 +28,9 @@ offsets, ``is_bigendian``, ``height``/``width`` and row padding in ``row_step``)
 * no usable time field: the time is derived from the azimuth as LeGO-LOAM does (see
   :func:`time_from_azimuth`). That is the case without a time field, with one that holds no
   times (every finite value the same time within the sweep, e.g. all zeros from a driver that
-  fills none, or none finite),
-  and with absolute times too coarse to time a sweep (float32 epoch seconds resolve 128 s).
-  :class:`TimeSource` in the :class:`DecodeStats` says which case a cloud was.
+  fills none, or none finite), and with absolute times too coarse to time a sweep (float32 epoch
+  seconds resolve 128 s). :class:`TimeSource` in the :class:`DecodeStats` says which case a
+  cloud was.
 
 Points closer than ``min_range_m`` are dropped and counted in the returned :class:`DecodeStats`.
 Decoding judges no point otherwise: non-finite or absurd coordinates and point times outside the
@@ -180,8 +180,7 @@ class TimeSource(str, Enum):
     absolute times made relative to the stamp. The other three derive the times from the azimuth
     (:func:`time_from_azimuth`): ``no_field`` (the cloud has no time field), ``no_spread`` (every
     finite value of the field is the same time within the sweep, or none is finite: a driver that
-    fills none),
-    ``coarse_absolute`` (absolute times that resolve no better than
+    fills none), ``coarse_absolute`` (absolute times that resolve no better than
     :data:`TIME_RESOLUTION_SWEEP_FRACTION` of a sweep, e.g. float32 epoch seconds).
     """
 
