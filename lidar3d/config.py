@@ -218,6 +218,11 @@ class InputConfig:
     """How scans are read from bags."""
 
     topic: str = _key("", None, "PointCloud2 topic; empty: auto-detect the only one")
+    azimuth_stamp: str = _key(
+        "sweep_start",
+        Choices(("sweep_start", "sweep_end")),
+        "what the header stamp marks in clouds whose point times come from the azimuth (no usable time field)",
+    )
 
 
 @dataclass(frozen=True, slots=True)

@@ -97,9 +97,11 @@ def _summary(
 
 
 def _input_warnings(input_stats: InputStatistics | None) -> tuple[str, ...]:
-    """The warning about damaged input points, when the input sanity stage dropped any."""
-    warning = input_stats.damage_warning() if input_stats is not None else None
-    return () if warning is None else (warning,)
+    """The warnings about damaged input points (when the input sanity stage dropped any) and about
+    point times derived from the azimuth (when some scans had no usable time field)."""
+    if input_stats is None:
+        return ()
+    return tuple(w for w in (input_stats.damage_warning(), input_stats.timing_warning()) if w is not None)
 
 
 class _RunPublisher:
@@ -249,6 +251,7 @@ def run_bag(
             messages_lost=stats.n_lost_messages,
             absurd_coordinates_dropped=stats.n_absurd_coordinates,
             outlier_times_dropped=stats.n_outlier_times,
+            scans_timed_from_azimuth=stats.n_scans_times_from_azimuth,
         )
         for warning in _input_warnings(input_stats):
             log.warning("%s: %s", ", ".join(inputs), warning)

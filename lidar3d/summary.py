@@ -13,7 +13,7 @@ Layout of ``summary.json`` (keys in this order; optional keys are left out when 
     loop_ms_total, counts {scans[, redeskewed_scans, motion_model_scans, degenerate_scans,
     loop_closures, dropped_duplicate_stamps, dropped_out_of_order_stamps]}, warnings, pose_stamp
     [, input_stats {points_kept, nonfinite_dropped, below_min_range_dropped, absurd_coordinates_dropped,
-    outlier_times_dropped, messages_lost}]
+    outlier_times_dropped, messages_lost, scans_timed_from_azimuth}]
     [, map_rebuild_s] [, evaluation {report, table, ate {translation_3d_m, horizontal_m,
     vertical_m, rotation_deg: {rmse, mean, median, std, min, max, n}}}] [, evaluation_error]
     [, outputs {<path>: {size_bytes, sha256[, rows]}, ...}]
@@ -230,6 +230,9 @@ class InputStatistics:
         outlier_times_dropped: points dropped for a non-finite time or one more than 1.5 sweep
             periods from the scan's stamp.
         messages_lost: messages lost to damage in the bag (recovered bags).
+        scans_timed_from_azimuth: scans without a usable per-point time field (none, all one value
+            such as zeros, or absolute times too coarse), whose point times were derived from the
+            azimuth, taking the header stamp as the sweep start.
     """
 
     points_kept: int
@@ -238,6 +241,7 @@ class InputStatistics:
     absurd_coordinates_dropped: int
     outlier_times_dropped: int
     messages_lost: int
+    scans_timed_from_azimuth: int
 
     def as_dict(self) -> dict[str, int]:
         return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
@@ -252,6 +256,16 @@ class InputStatistics:
             f"input sanity: dropped {self.absurd_coordinates_dropped} points with absurd coordinates and "
             f"{self.outlier_times_dropped} with point times outside the sweep ({self.nonfinite_dropped} "
             "non-finite points also dropped); see input_stats in summary.json"
+        )
+
+    def timing_warning(self) -> str | None:
+        """One warning line when point times were derived from the azimuth for some scans; None otherwise."""
+        if not self.scans_timed_from_azimuth:
+            return None
+        return (
+            f"input: {self.scans_timed_from_azimuth} scans had no usable per-point times (no time field, one "
+            "value for every point, or absolute times too coarse); their point times were derived from the "
+            "azimuth, with the header stamp taken as input.azimuth_stamp says; see input_stats in summary.json"
         )
 
     @classmethod

@@ -159,8 +159,8 @@ def _bad_bags(tmp_path):
     write_cloud_bag(odd, [dataclasses.replace(parts, fields=fields)])
     cases["unsupported datatype"] = (
         [str(odd)],
-        f"{odd}: first cloud on /velodyne_points: field 'time' has unsupported datatype 11 (PointField codes are 1-8: "
-        "1=INT8, 2=UINT8, 3=INT16, 4=UINT16, 5=INT32, 6=UINT32, 7=FLOAT32, 8=FLOAT64)",
+        f"{odd}: first cloud on /velodyne_points: field 'time' has unsupported datatype 11 (supported PointField "
+        "codes: 1=INT8, 2=UINT8, 3=INT16, 4=UINT16, 5=INT32, 6=UINT32, 7=FLOAT32, 8=FLOAT64, 9=INT64, 10=UINT64)",
     )
     return cases
 

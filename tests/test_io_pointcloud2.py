@@ -269,8 +269,8 @@ def test_data_length_mismatch_is_an_error():
 
 def test_unsupported_datatype_names_field_and_datatype():
     parts = encode_scan(vlp_scan(n_columns=4))
-    fields = tuple(PointField(f.name, f.offset, 9 if f.name == "intensity" else f.datatype) for f in parts.fields)
-    with pytest.raises(PointCloudError, match=r"field 'intensity' has unsupported datatype 9"):
+    fields = tuple(PointField(f.name, f.offset, 11 if f.name == "intensity" else f.datatype) for f in parts.fields)
+    with pytest.raises(PointCloudError, match=r"field 'intensity' has unsupported datatype 11"):
         decode_parts(dataclasses.replace(parts, fields=fields))
 
 
@@ -294,7 +294,8 @@ def test_row_step_smaller_than_a_row_is_an_error():
 
 
 def test_point_field_type_codes_match_ros():
-    assert [t.value for t in PointFieldType] == list(range(1, 9))
+    # 1-8 of every ROS distribution, INT64 = 9 and UINT64 = 10 of ROS 2 Rolling
+    assert [t.value for t in PointFieldType] == list(range(1, 11))
 
 
 def test_ring_table_renumbers_reversed_and_interleaved_but_keeps_near_ascending():

@@ -87,6 +87,7 @@ def example_summary(**changes) -> RunSummary:
             absurd_coordinates_dropped=2,
             outlier_times_dropped=1,
             messages_lost=0,
+            scans_timed_from_azimuth=80,
         ),
         map_rebuild_s=3.5,
         evaluation=EvaluationSummary(
@@ -203,6 +204,10 @@ def _broken(change) -> str:
         (lambda d: d["counts"].update(scans=-0.5), "'counts.scans' must be an integer, got -0.5"),
         (lambda d: d["input_stats"].pop("messages_lost"), "key 'input_stats.messages_lost' is missing"),
         (
+            lambda d: d["input_stats"].pop("scans_timed_from_azimuth"),
+            "key 'input_stats.scans_timed_from_azimuth' is missing",
+        ),
+        (
             lambda d: d["input_stats"].pop("outlier_times_dropped"),
             "key 'input_stats.outlier_times_dropped' is missing",
         ),
@@ -257,6 +262,7 @@ def test_input_statistics_warn_about_damaged_points_only():
         absurd_coordinates_dropped=0,
         outlier_times_dropped=0,
         messages_lost=0,
+        scans_timed_from_azimuth=10,
     )
     assert clean.damage_warning() is None  # NaN for missing returns is what drivers write
     damaged = dataclasses.replace(clean, absurd_coordinates_dropped=2, outlier_times_dropped=1)

@@ -13,16 +13,24 @@ Decoding builds a structured dtype from the message's own ``fields`` (honouring 
 offsets, ``is_bigendian``, ``height``/``width`` and row padding in ``row_step``) and views the
 ``data`` buffer through it without copying. The field variants real drivers produce all decode:
 
-* ``time`` float32, seconds relative to the stamp (velodyne_pointcloud);
+* ``time`` float32, seconds relative to the stamp (velodyne_pointcloud), from the sweep start
+  (0..T) or to the sweep end (-T..0);
 * ``t`` uint32 nanoseconds relative to the stamp (Ouster); any integer time field (``t``,
   ``time_stamp``, ``offset_time``, ``time``) is read as relative nanoseconds;
-* ``timestamp`` float64 absolute seconds (Hesai, RoboSense); a float time field whose median
-  magnitude exceeds :data:`ABSOLUTE_TIME_THRESHOLD_S` is taken as absolute and made relative to
-  the stamp (the bulk of the points decides, so one damaged time cannot move the others);
+* absolute times: ``timestamp`` float64 epoch seconds (Hesai, RoboSense), float64 epoch
+  nanoseconds (Livox), int64/uint64 epoch nanoseconds (PointField codes 9 and 10 of ROS 2
+  Rolling). A time field whose median magnitude exceeds :data:`ABSOLUTE_TIME_THRESHOLD_S`
+  (read as seconds for a float field, as nanoseconds for an integer one) is absolute; its unit
+  (s, ms, us or ns) is the one that puts the values nearest the header stamp, which is then
+  subtracted (the bulk of the points decides, so one damaged time cannot move the others);
 * no ring field: the ring is the beam of the sensor's elevation table nearest to each point's
   elevation angle (:meth:`lidar3d.sensors.SensorModel.ring_from_elevation`);
-* no time field: the time is derived from the azimuth as LeGO-LOAM does (see
-  :func:`time_from_azimuth`).
+* no usable time field: the time is derived from the azimuth as LeGO-LOAM does (see
+  :func:`time_from_azimuth`). That is the case without a time field, with one that holds no
+  times (every finite value the same time within the sweep, e.g. all zeros from a driver that
+  fills none, or none finite), and with absolute times too coarse to time a sweep (float32 epoch
+  seconds resolve 128 s). :class:`TimeSource` in the :class:`DecodeStats` says which case a
+  cloud was.
 
 Points closer than ``min_range_m`` are dropped and counted in the returned :class:`DecodeStats`.
 Decoding judges no point otherwise: non-finite or absurd coordinates and point times outside the
@@ -36,13 +44,13 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from enum import IntEnum
+from enum import Enum, IntEnum
 from typing import Any
 
 import numpy as np
 
 from lidar3d.errors import PointCloudError
-from lidar3d.io.scan_sanity import plausible_coordinates
+from lidar3d.io.scan_sanity import TIME_WINDOW_SWEEPS, plausible_coordinates
 from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, SensorModel
 
@@ -54,12 +62,14 @@ __all__ = [
     "RING_FIELD_NAMES",
     "RING_ORDER_MIN_CORRELATION",
     "TIME_FIELD_NAMES",
+    "TIME_RESOLUTION_SWEEP_FRACTION",
     "VELODYNE_FIELDS",
     "VELODYNE_POINT_STEP",
     "DecodeStats",
     "PointCloud2Parts",
     "PointField",
     "PointFieldType",
+    "TimeSource",
     "decode_parts",
     "encode_scan",
     "parts_from_message",
@@ -72,8 +82,11 @@ logger = logging.getLogger(__name__)
 
 #: The ROS message type (ROS2 spelling) of everything this module encodes and decodes.
 POINTCLOUD2_TYPE = "sensor_msgs/msg/PointCloud2"
-#: A float time field whose median magnitude is above this many seconds holds absolute times (epoch seconds).
+#: A time field whose median magnitude is above this many seconds (nanoseconds for an integer field)
+#: holds absolute times.
 ABSOLUTE_TIME_THRESHOLD_S = 1.0e5
+#: Absolute times that resolve no better than this fraction of the sweep period cannot time a sweep.
+TIME_RESOLUTION_SWEEP_FRACTION = 0.01
 #: The largest ``point_step`` (bytes) a cloud may declare: the largest record NumPy can describe.
 MAX_POINT_STEP = 2**31 - 1
 _START_TOLERANCE_RAD = 5.0e-4
@@ -82,7 +95,7 @@ RING_ORDER_MIN_CORRELATION = 0.9
 
 
 class PointFieldType(IntEnum):
-    """``sensor_msgs/PointField`` datatype codes."""
+    """``sensor_msgs/PointField`` datatype codes (9 and 10: ROS 2 Rolling, ros2/common_interfaces#301)."""
 
     INT8 = 1
     UINT8 = 2
@@ -92,6 +105,8 @@ class PointFieldType(IntEnum):
     UINT32 = 6
     FLOAT32 = 7
     FLOAT64 = 8
+    INT64 = 9
+    UINT64 = 10
 
 
 _NUMPY_TYPE = {
@@ -103,6 +118,8 @@ _NUMPY_TYPE = {
     PointFieldType.UINT32: "u4",
     PointFieldType.FLOAT32: "f4",
     PointFieldType.FLOAT64: "f8",
+    PointFieldType.INT64: "i8",
+    PointFieldType.UINT64: "u8",
 }
 
 
@@ -156,12 +173,36 @@ class PointCloud2Parts:
     is_dense: bool
 
 
+class TimeSource(str, Enum):
+    """Where a decoded cloud's per-point times came from.
+
+    ``relative``: the time field, relative to the header stamp. ``absolute``: the time field,
+    absolute times made relative to the stamp. The other three derive the times from the azimuth
+    (:func:`time_from_azimuth`): ``no_field`` (the cloud has no time field), ``no_spread`` (every
+    finite value of the field is the same time within the sweep, or none is finite: a driver that
+    fills none), ``coarse_absolute`` (absolute times that resolve no better than
+    :data:`TIME_RESOLUTION_SWEEP_FRACTION` of a sweep, e.g. float32 epoch seconds).
+    """
+
+    RELATIVE = "relative"
+    ABSOLUTE = "absolute"
+    NO_FIELD = "no_field"
+    NO_SPREAD = "no_spread"
+    COARSE_ABSOLUTE = "coarse_absolute"
+
+    @property
+    def from_azimuth(self) -> bool:
+        """Whether the times were derived from the azimuth."""
+        return self not in (TimeSource.RELATIVE, TimeSource.ABSOLUTE)
+
+
 @dataclass(frozen=True, slots=True)
 class DecodeStats:
-    """What decoding one cloud kept and dropped (all counts of points)."""
+    """What decoding one cloud kept and dropped (all counts of points), and where its times came from."""
 
     n_input: int
     n_below_min_range: int
+    time_source: TimeSource = TimeSource.RELATIVE
 
     @property
     def n_kept(self) -> int:
@@ -270,7 +311,7 @@ def _structured_dtype(parts: PointCloud2Parts, wanted: dict[str, PointField]) ->
         except ValueError:
             raise PointCloudError(
                 f"field {field.name!r} has unsupported datatype {field.datatype} "
-                f"(PointField codes are 1-8: {', '.join(f'{t.value}={t.name}' for t in PointFieldType)})"
+                f"(supported PointField codes: {', '.join(f'{t.value}={t.name}' for t in PointFieldType)})"
             ) from None
         size = np.dtype(_NUMPY_TYPE[code]).itemsize
         if field.offset < 0 or field.offset + size > parts.point_step:
@@ -397,6 +438,7 @@ def decode_parts(
     sensor: SensorModel = VLP16,
     min_range_m: float = 0.0,
     ring_table: np.ndarray | None = None,
+    azimuth_stamp_at_end: bool = False,
 ) -> tuple[Scan, DecodeStats]:
     """Decode PointCloud2 parts into a :class:`Scan` and the :class:`DecodeStats` of what was dropped.
 
@@ -407,6 +449,9 @@ def decode_parts(
         min_range_m: points nearer than this to the origin are dropped (LeGO-LOAM drops them too).
         ring_table: renumbering of the ring field's values (see :func:`ring_table_from_elevation`);
             None keeps them.
+        azimuth_stamp_at_end: for times derived from the azimuth: the stamp marks the sweep's last
+            firing (times -T..0: each azimuth time minus ``(n_columns - 1) / n_columns`` of the
+            period), not its first (times 0..T).
 
     Raises:
         PointCloudError: missing x/y/z, a data length that disagrees with the shape, a field with
@@ -451,14 +496,18 @@ def decode_parts(
         if ring is None:
             elevation = np.arctan2(points[:, 2], np.hypot(points[:, 0], points[:, 1]))
             ring = sensor.ring_from_elevation(elevation)
+        time_s: np.ndarray | None = None
+        time_source = TimeSource.NO_FIELD
         if "time" in wanted:
-            time_s = _relative_times(column("time"), parts.stamp_ns)
-        else:
+            time_s, time_source = _field_times(column("time"), parts.stamp_ns, sensor.sweep_period_s)
+        if time_s is None:
             plausible = plausible_coordinates(points, sensor)[1]
             start = int(np.argmax(plausible)) if plausible.any() else 0
             time_s = time_from_azimuth(points, sensor.sweep_period_s, start)
+            if azimuth_stamp_at_end:
+                time_s -= sensor.sweep_period_s * (sensor.n_columns - 1) / sensor.n_columns
 
-    stats = DecodeStats(n_input=n_input, n_below_min_range=n_near)
+    stats = DecodeStats(n_input=n_input, n_below_min_range=n_near, time_source=time_source)
     if not all_kept:
         logger.debug(
             "cloud at %d ns: dropped %d points nearer than %.2f m of %d", parts.stamp_ns, n_near, min_range_m, n_input
@@ -477,25 +526,72 @@ def _ring_values(raw: np.ndarray, ring_table: np.ndarray | None) -> np.ndarray:
     return ring_table[np.minimum(raw.astype(np.intp), ring_table.size - 1)]
 
 
-def _relative_times(raw: np.ndarray, stamp_ns: int) -> np.ndarray:
-    """Time field values as float64 seconds relative to ``stamp_ns``.
+def _field_times(raw: np.ndarray, stamp_ns: int, sweep_period_s: float) -> tuple[np.ndarray | None, TimeSource]:
+    """Time field values as float64 seconds relative to ``stamp_ns``, and their :class:`TimeSource`;
+    None for the times when the field holds none a sweep can be timed with (derive them from the
+    azimuth instead).
 
-    Integer fields hold relative nanoseconds. Float fields hold relative seconds, or absolute
-    seconds when the median magnitude of their finite values exceeds
-    :data:`ABSOLUTE_TIME_THRESHOLD_S`: the bulk of the points decides the time base for the whole
-    cloud, and the few points that disagree with it end far outside the sweep, where the sanity
-    stage drops them.
+    Integer fields hold relative nanoseconds, float fields relative seconds, unless the median
+    magnitude of their finite values exceeds :data:`ABSOLUTE_TIME_THRESHOLD_S` (in those units):
+    then they are absolute (:func:`_absolute_to_relative`). The bulk of the points decides the time
+    base for the whole cloud, and the few points that disagree with it end far outside the sweep,
+    where the sanity stage drops them. A field whose finite times are all one value within the
+    sanity window (all zeros: a driver that fills none), or that holds no finite time, times
+    nothing (``no_spread``); one value outside the window is left to the sanity stage.
     """
-    if raw.dtype.kind != "f":
-        return raw.astype(np.float64) * 1e-9
-    time_s = raw.astype(np.float64)
+    time_s = raw.astype(np.float64) if raw.dtype.kind == "f" else raw.astype(np.float64) * 1e-9
+    source = TimeSource.RELATIVE
+    if time_s.size and _is_absolute(time_s):
+        absolute_s, source = _absolute_to_relative(raw, stamp_ns, sweep_period_s)
+        if absolute_s is None:
+            return None, source
+        time_s = absolute_s
+    if time_s.size > 1:
+        low, high = np.fmin.reduce(time_s), np.fmax.reduce(time_s)  # NaN ignored; NaN only when none is finite
+        if np.isnan(low) or (low == high and abs(low) <= TIME_WINDOW_SWEEPS * sweep_period_s):
+            return None, TimeSource.NO_SPREAD
+    return time_s, source
+
+
+def _is_absolute(time_s: np.ndarray) -> bool:
+    """Whether the median magnitude of the finite ``time_s`` exceeds :data:`ABSOLUTE_TIME_THRESHOLD_S`."""
     magnitude = np.abs(time_s)
     # The largest finite magnitude first (NaN ignored): the median is needed only when some time is large.
-    if (
-        magnitude.size
-        and np.fmax.reduce(magnitude) > ABSOLUTE_TIME_THRESHOLD_S
+    return bool(
+        np.fmax.reduce(magnitude) > ABSOLUTE_TIME_THRESHOLD_S
         and np.median(magnitude[np.isfinite(magnitude)]) > ABSOLUTE_TIME_THRESHOLD_S
-    ):
+    )
+
+
+#: Units (s) absolute times may be counted in: seconds, milliseconds, microseconds, nanoseconds.
+_ABSOLUTE_UNITS_S = (1.0, 1e-3, 1e-6, 1e-9)
+
+
+def _absolute_to_relative(
+    raw: np.ndarray, stamp_ns: int, sweep_period_s: float
+) -> tuple[np.ndarray | None, TimeSource]:
+    """Absolute time field values as seconds relative to ``stamp_ns`` (``absolute``), or None when
+    they resolve no better than :data:`TIME_RESOLUTION_SWEEP_FRACTION` of the sweep period
+    (``coarse_absolute``).
+
+    The unit is the one of :data:`_ABSOLUTE_UNITS_S` that puts the median value nearest the stamp
+    (by ratio); with no positive stamp to compare, seconds for a float field and nanoseconds for
+    an integer one. Integer values are made relative in integer nanoseconds (exact).
+    """
+    values = raw.astype(np.float64)
+    median = float(np.median(np.abs(values[np.isfinite(values)])))
+    if stamp_ns > 0:
+        stamp_s = stamp_ns * 1e-9
+        unit_s = min(_ABSOLUTE_UNITS_S, key=lambda unit: abs(np.log10(median * unit / stamp_s)))
+    else:
+        unit_s = 1.0 if raw.dtype.kind == "f" else 1e-9
+    step = float(np.spacing(raw.dtype.type(median))) if raw.dtype.kind == "f" else 1.0
+    if step * unit_s > TIME_RESOLUTION_SWEEP_FRACTION * sweep_period_s:
+        return None, TimeSource.COARSE_ABSOLUTE
+    if raw.dtype.kind != "f":
+        ns_per_unit = round(unit_s * 1e9)
+        return (raw.astype(np.int64) * ns_per_unit - stamp_ns).astype(np.float64) * 1e-9, TimeSource.ABSOLUTE
+    if unit_s == 1.0:
         sec, nanosec = divmod(stamp_ns, 1_000_000_000)
-        time_s = (time_s - float(sec)) - nanosec * 1e-9
-    return time_s
+        return (values - float(sec)) - nanosec * 1e-9, TimeSource.ABSOLUTE
+    return (values - stamp_ns * (1e-9 / unit_s)) * unit_s, TimeSource.ABSOLUTE

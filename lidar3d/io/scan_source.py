@@ -45,7 +45,8 @@ class ReadStats:
 
     ``n_points_kept`` entered the front end; the drops are by decoding (``n_below_min_range``) and
     by the sanity stage (``n_nonfinite``, ``n_absurd_coordinates``, ``n_outlier_times``: see
-    :mod:`lidar3d.io.scan_sanity`).
+    :mod:`lidar3d.io.scan_sanity`). ``n_scans_times_from_azimuth`` scans had no usable time field
+    (:class:`~lidar3d.io.pointcloud2.TimeSource`): their point times were derived from the azimuth.
     """
 
     n_scans: int = 0
@@ -56,6 +57,7 @@ class ReadStats:
     n_absurd_coordinates: int = 0
     n_outlier_times: int = 0
     n_lost_messages: int = 0
+    n_scans_times_from_azimuth: int = 0
 
     def add(self, stats: DecodeStats, counts: SanityCounts) -> ReadStats:
         return ReadStats(
@@ -67,6 +69,7 @@ class ReadStats:
             n_absurd_coordinates=self.n_absurd_coordinates + counts.n_absurd_coordinates,
             n_outlier_times=self.n_outlier_times + counts.n_outlier_times,
             n_lost_messages=self.n_lost_messages,
+            n_scans_times_from_azimuth=self.n_scans_times_from_azimuth + stats.time_source.from_azimuth,
         )
 
 
@@ -123,6 +126,8 @@ class ScanSource:
         sensor: for ring renumbering and clouds without ring or time fields (see :class:`ScanDecoder`).
         min_range_m: points nearer than this are dropped (counted in :attr:`stats`, as are the points
             the sanity stage drops: :mod:`lidar3d.io.scan_sanity`).
+        azimuth_stamp_at_end: clouds whose point times come from the azimuth are stamped at the
+            sweep end (``input.azimuth_stamp = "sweep_end"``), see :class:`ScanDecoder`.
 
     Raises (from ``open``/``__enter__``):
         BagError: missing path, not a bag, empty bag, no/ambiguous/unknown lidar topic.
@@ -138,6 +143,7 @@ class ScanSource:
         topic: str | None = None,
         sensor: SensorModel = VLP16,
         min_range_m: float = 0.0,
+        azimuth_stamp_at_end: bool = False,
     ) -> None:
         if isinstance(paths, (str, Path)):
             paths = [paths]
@@ -148,6 +154,7 @@ class ScanSource:
         self._requested_topic = topic or None
         self.sensor = sensor
         self.min_range_m = float(min_range_m)
+        self.azimuth_stamp_at_end = azimuth_stamp_at_end
         self._inputs: list[BagInput] = []
         self._topic: str | None = None
         self._topics: dict[str, TopicInfo] = {}
@@ -189,18 +196,7 @@ class ScanSource:
         for opened in inputs:
             opened.close()
         if self._stats.n_scans:
-            logger.info(
-                "read %d scans from %s: %d points kept; dropped %d nearer than %.2f m, %d non-finite, "
-                "%d with absurd coordinates, %d with outlier times",
-                self._stats.n_scans,
-                self.label,
-                self._stats.n_points_kept,
-                self._stats.n_below_min_range,
-                self.min_range_m,
-                self._stats.n_nonfinite,
-                self._stats.n_absurd_coordinates,
-                self._stats.n_outlier_times,
-            )
+            _log_read_totals(self._stats, self.label, self.min_range_m)
 
     def __enter__(self) -> ScanSource:
         return self.open()
@@ -274,7 +270,13 @@ class ScanSource:
 
     def make_decoder(self) -> ScanDecoder:
         """A fresh :class:`ScanDecoder` for this source's topic, as iterating the source uses."""
-        return ScanDecoder(self.sensor, self.min_range_m, label=self.label, topic=self.topic)
+        return ScanDecoder(
+            self.sensor,
+            self.min_range_m,
+            label=self.label,
+            topic=self.topic,
+            azimuth_stamp_at_end=self.azimuth_stamp_at_end,
+        )
 
     def scans(self, start: int = 0, stop: int | None = None) -> Iterator[tuple[int, Scan]]:
         """``(index, scan)`` of the lidar topic's messages ``start <= index < stop`` (None: to the end).
@@ -304,10 +306,28 @@ class ScanSource:
             yield scan
 
 
+def _log_read_totals(stats: ReadStats, label: str, min_range_m: float) -> None:
+    """The info line about what reading ``label`` kept and dropped."""
+    logger.info(
+        "read %d scans from %s: %d points kept; dropped %d nearer than %.2f m, %d non-finite, "
+        "%d with absurd coordinates, %d with outlier times; %d scans timed from the azimuth",
+        stats.n_scans,
+        label,
+        stats.n_points_kept,
+        stats.n_below_min_range,
+        min_range_m,
+        stats.n_nonfinite,
+        stats.n_absurd_coordinates,
+        stats.n_outlier_times,
+        stats.n_scans_times_from_azimuth,
+    )
+
+
 def open_scan_source(paths: str | Path | Sequence[str | Path], config: Any = None) -> ScanSource:
     """A :class:`ScanSource` configured from a :class:`lidar3d.config.Config` (defaults when None).
 
-    Uses ``config.input.topic``, ``config.sensor.resolved_model`` and ``config.sensor.min_range_m``.
+    Uses ``config.input.topic``, ``config.input.azimuth_stamp``, ``config.sensor.resolved_model`` and
+    ``config.sensor.min_range_m``.
     Not yet opened: use it in a ``with`` block.
     """
     if config is None:
@@ -319,4 +339,5 @@ def open_scan_source(paths: str | Path | Sequence[str | Path], config: Any = Non
         topic=config.input.topic or None,
         sensor=config.sensor.resolved_model,
         min_range_m=config.sensor.min_range_m,
+        azimuth_stamp_at_end=config.input.azimuth_stamp == "sweep_end",
     )

@@ -1,0 +1,200 @@
+"""Accuracy of ``lidar3d run`` on per-point time layouts, and the cost of a long stop (issue 15, bad input).
+
+``layouts``: simulates a drive twice (header stamps at the sweep start and at the sweep end),
+rewrites each bag in every time layout of docs/stages/input.md (no time field, no ring either,
+all-zero times, absolute float64 seconds / float64 and uint64 nanoseconds, float32 seconds,
+seconds since boot) and prints the ATE RMSE of ``lidar3d run --no-loop`` on each against the
+simulator's ground truth (or the one-line error).
+
+``stop``: simulates the ``stops`` scenario with its first stop held for ``--hold`` seconds, runs
+``lidar3d.run.run_bag`` on it and prints the drift while standing, the keyframes added, the wall
+seconds per stationary and per moving scan and the peak memory.
+
+Everything is written into a temporary folder (deleted afterwards, never committed). Usage::
+
+    .venv/bin/python eval/bench_bad_input.py layouts --scenario loop --duration 25
+    .venv/bin/python eval/bench_bad_input.py stop --hold 180
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import resource
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+if str(REPO) not in sys.path:
+    sys.path.insert(0, str(REPO))
+
+from lidar3d.cli.main import main as cli_main  # noqa: E402
+from lidar3d.io.bag_writer import write_cloud_bag  # noqa: E402
+from lidar3d.io.pointcloud2 import PointCloud2Parts, PointField, PointFieldType  # noqa: E402
+from lidar3d.io.scan_source import ScanSource  # noqa: E402
+from lidar3d.io.trajectory_io import read_tum  # noqa: E402
+from lidar3d.metrics.evaluation import evaluate_trajectory  # noqa: E402
+from lidar3d.records import Scan  # noqa: E402
+
+_CODES = {
+    "u2": PointFieldType.UINT16,
+    "f4": PointFieldType.FLOAT32,
+    "f8": PointFieldType.FLOAT64,
+    "u8": PointFieldType.UINT64,
+}
+
+
+def cloud(scan: Scan, time_field: tuple[str, str, np.ndarray] | None, *, ring: bool = True) -> PointCloud2Parts:
+    """``scan`` as x, y, z, intensity float32, ring uint16 (optional) and one time field (optional)."""
+    fields = [("x", "f4", scan.points[:, 0]), ("y", "f4", scan.points[:, 1]), ("z", "f4", scan.points[:, 2])]
+    fields.append(("intensity", "f4", scan.intensity))
+    if ring:
+        fields.append(("ring", "u2", scan.ring))
+    if time_field is not None:
+        fields.append(time_field)
+    offsets, offset = [], 0
+    for _name, code, _values in fields:
+        size = np.dtype(code).itemsize
+        offset = -(-offset // size) * size
+        offsets.append(offset)
+        offset += size
+    step = -(-offset // 8) * 8
+    dtype = np.dtype(
+        {"names": [f[0] for f in fields], "formats": ["<" + f[1] for f in fields], "offsets": offsets, "itemsize": step}
+    )
+    records = np.zeros(len(scan), dtype=dtype)
+    for name, _code, values in fields:
+        records[name] = values
+    return PointCloud2Parts(
+        stamp_ns=scan.stamp_ns,
+        frame_id="velodyne",
+        height=1,
+        width=len(scan),
+        fields=tuple(PointField(f[0], o, _CODES[f[1]]) for f, o in zip(fields, offsets)),
+        is_bigendian=False,
+        point_step=step,
+        row_step=step * len(scan),
+        data=records.view(np.uint8).reshape(-1).copy(),
+        is_dense=True,
+    )
+
+
+def _ns(scan: Scan) -> np.ndarray:
+    return scan.stamp_ns + np.round(scan.time_offset_s * 1e9).astype(np.int64)
+
+
+LAYOUTS: dict[str, Callable[[Scan], PointCloud2Parts] | None] = {
+    "time relative (as simulated)": None,
+    "no time field": lambda s: cloud(s, None),
+    "no time, no ring": lambda s: cloud(s, None, ring=False),
+    "all-zero time": lambda s: cloud(s, ("time", "f4", np.zeros(len(s)))),
+    "f64 epoch s": lambda s: cloud(s, ("timestamp", "f8", s.stamp_ns * 1e-9 + s.time_offset_s)),
+    "f64 epoch ns": lambda s: cloud(s, ("timestamp", "f8", _ns(s).astype(np.float64))),
+    "u64 epoch ns": lambda s: cloud(s, ("timestamp", "u8", _ns(s))),
+    "f32 epoch s": lambda s: cloud(s, ("timestamp", "f4", s.stamp_ns * 1e-9 + s.time_offset_s)),
+    "seconds since boot": lambda s: cloud(s, ("time", "f4", 1234.5 + s.time_offset_s)),
+}
+
+
+def _run_ate(bag: Path, ground_truth: Path, out: Path, *options: str) -> str:
+    if cli_main(["-q", "run", str(bag), "--out", str(out), "--no-loop", *options]) != 0:
+        return "error (one line, exit 1)"
+    evaluation = evaluate_trajectory(read_tum(out / "trajectory_tum.txt"), read_tum(ground_truth))
+    return f"{evaluation.ate.translation_3d_m.rmse:.4f} m"
+
+
+def layouts(args: argparse.Namespace, work: Path) -> None:
+    from lidar3d import sim
+
+    config = work / "sweep_end.toml"
+    config.write_text('[input]\nazimuth_stamp = "sweep_end"\n')
+    print("| stamp | layout | ATE RMSE |\n|---|---|---:|")
+    for stamp in (sim.StampMode.SWEEP_START, sim.StampMode.SWEEP_END):
+        scenario = sim.get_scenario(args.scenario)
+        params = dataclasses.replace(scenario.lidar, stamp=stamp)
+        simulation = sim.Simulation(scenario, seed=args.seed, duration_s=args.duration, lidar=params)
+        outputs = sim.write_simulation(simulation, work / stamp.value)
+        with ScanSource(outputs.bag) as source:
+            scans = list(source)
+        runs: list[tuple[str, Callable[[Scan], PointCloud2Parts] | None, tuple[str, ...]]]
+        runs = [(name, make, ()) for name, make in LAYOUTS.items()]
+        if stamp is sim.StampMode.SWEEP_END:
+            runs.append(
+                ("no time field, azimuth_stamp = sweep_end", LAYOUTS["no time field"], ("--config", str(config)))
+            )
+        for index, (name, make, options) in enumerate(runs):
+            bag = outputs.bag
+            if make is not None:
+                bag = work / f"{stamp.value}_{index}.bag"
+                write_cloud_bag(bag, [make(scan) for scan in scans])
+            ate = _run_ate(bag, outputs.ground_truth, work / f"run_{stamp.value}_{index}", *options)
+            print(f"| {stamp.value} | {name} | {ate} |", flush=True)
+
+
+def stop(args: argparse.Namespace, work: Path) -> None:
+    from lidar3d import sim
+    from lidar3d.run import run_bag
+
+    base = sim.get_scenario("stops")
+    route = dataclasses.replace(base.route, stops=((43.0, args.hold),))
+    scenario = dataclasses.replace(base, name=f"stop_{args.hold:g}s", route=route)
+    whole = sim.Simulation(scenario, seed=args.seed)
+    start_ns, end_ns = whole.stop_spans_ns()[0]
+    duration_s = (end_ns - whole.start_time_ns) * 1e-9 + args.after
+    outputs = sim.write_simulation(sim.Simulation(scenario, seed=args.seed, duration_s=duration_s), work / "sim")
+    ticks: list[float] = []
+    t0 = time.perf_counter()
+    run_bag(outputs.bag, work / "run", on_scan=lambda done, total: ticks.append(time.perf_counter()))
+    wall_s = time.perf_counter() - t0
+    estimate = read_tum(work / "run" / "trajectory_tum.txt")
+    standing = (estimate.stamps_ns >= start_ns) & (estimate.stamps_ns <= end_ns)
+    position = estimate.T_world_lidar[standing, :3, 3]
+    moved = np.linalg.norm(position - position[0], axis=1)
+    rotation = estimate.T_world_lidar[standing, :3, :3]
+    yaw = np.degrees(np.unwrap(np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])))
+    keyframes = read_tum(work / "run" / "keyframes_tum.txt").stamps_ns
+    per_scan = np.diff(np.array(ticks))  # per_scan[i]: wall time of scan i + 1
+    still = standing[1:]
+    held_s = (end_ns - start_ns) * 1e-9
+    figures = {
+        "hold_s": held_s,
+        "scans": int(len(estimate)),
+        "stationary_scans": int(standing.sum()),
+        "wall_s": round(wall_s, 1),
+        "moved_end_m": round(float(moved[-1]), 4),
+        "moved_max_m": round(float(moved.max()), 4),
+        "drift_m_per_s": float(f"{moved[-1] / held_s:.2g}"),
+        "yaw_change_deg": round(float(yaw[-1] - yaw[0]), 4),
+        "keyframes_while_standing": int(np.count_nonzero((keyframes >= start_ns) & (keyframes <= end_ns))),
+        "s_per_stationary_scan_median": round(float(np.median(per_scan[still])), 3),
+        "s_per_moving_scan_median": round(float(np.median(per_scan[~still])), 3),
+        "peak_rss_main_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
+    }
+    print(json.dumps(figures, indent=1))
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    lay = sub.add_parser("layouts", help="ATE per time layout")
+    lay.add_argument("--scenario", default="loop")
+    lay.add_argument("--duration", type=float, default=25.0)
+    lay.add_argument("--seed", type=int, default=0)
+    stp = sub.add_parser("stop", help="drift and cost of a long stop")
+    stp.add_argument("--hold", type=float, default=180.0, help="seconds standing still")
+    stp.add_argument("--after", type=float, default=5.0, help="seconds of driving after the stop")
+    stp.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="bench_bad_input_") as tmp:
+        (layouts if args.what == "layouts" else stop)(args, Path(tmp))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
