@@ -408,3 +408,64 @@ def test_health_check_on_a_simulated_run_meets_the_targets(simulated, default_ru
     report = check_health(out, simulated.ground_truth.parent, segment_m=5.0)
     assert report["scored"] > 0 and report["bad"] == 0 and report["false_flag_rate"] == 0.0
     assert report["recall"] is None and report["recall_met"] and report["false_flag_met"]
+
+
+def test_the_batch_line_of_a_bag_with_lost_stretches_says_so():
+    from lidar3d.batch import JobResult, JobStatus
+    from lidar3d.batch.progress import BatchProgress, ProgressDisplay
+
+    progress = BatchProgress({"a": 100})
+    progress.started("a")
+    progress.finished_job(JobResult("a", JobStatus.DONE, summary=example_summary(scans=55, health=_lost_summary(1))))
+    stream = io.StringIO()
+    display = ProgressDisplay(progress, stream)
+    display.finished(progress.results["a"])
+    display.close()
+    assert "a: 55 scans, " in stream.getvalue() and "; health: lost over 12.5 m" in stream.getvalue()
+
+
+def test_the_suite_tables_hold_the_health_check():
+    from suite_report import render_markdown
+
+    header = {
+        "command": "eval/run_suite.py",
+        "date_utc": "2026-12-01 23:00 UTC",
+        "elapsed_min": 1.0,
+        "cpu": "cpu",
+        "n_cpus": 2,
+        "memory_gib": 4.0,
+        "load_start": "0.1",
+        "load_end": "0.1",
+        "lidar3d_version": "0",
+        "commit": "`abc`",
+        "python": "3.11",
+        "peer_versions": {},
+        "seeds": [0],
+        "durations_text": "full length",
+        "jobs": 1,
+        "peer_fractions": {},
+        "quick_command": "q",
+        "skipped": [],
+    }
+    row = {
+        "scenario": "blind_turn",
+        "seed": 0,
+        "method": "lidar3d",
+        "status": "ok",
+        "case": {"path_length_m": 422.0, "n_scans": 700, "revisit_events": 0},
+        "run": {"scans": 700, "wall_s": 150.0, "scans_per_s": 4.6, "health": {"lost_m": 199.6}},
+        "scores": {},
+        "peak_rss_mib": 500.0,
+        "health": {
+            "flags": {"ok": 328, "degraded": 14, "lost": 358},
+            "bad": 364,
+            "scored": 672,
+            "recall": 1.0,
+            "false_flag_rate": 0.0262,
+        },
+    }
+    markdown = render_markdown([row], header)
+    assert "## lidar3d health signal against ground truth" in markdown
+    assert "| blind_turn | 328 / 14 / 358 | 199.6 | 364 of 672 | 100.0 % | 2.6 % |" in markdown
+    no_check = render_markdown([{**row, "health": None}], header)
+    assert "health signal" not in no_check
