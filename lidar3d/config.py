@@ -352,10 +352,11 @@ class HealthConfig:
 
     A scan *observes* its pose when its registration ran, the pose's standard deviation along the
     weakest direction of the scan's information is at most ``observed_sigma_m``, and its refined step
-    agrees with the scan-to-scan odometry step within ``max_disagreement_m``. Travel over scans that
-    do not is dead-reckoned: once ``degraded_after_m`` of it has accumulated the scans are
-    ``degraded``, past ``lost_after_m`` they are ``lost``; ``degraded_after_m`` of observed travel
-    clears it.
+    agrees with the scan-to-scan odometry step within ``max_disagreement_m``; it observes every
+    direction when its registration also took none from the prior. After ``degraded_after_m`` of
+    travel with some direction dead-reckoned the scans are ``degraded``; after ``lost_after_m`` of
+    travel with the pose not observed they are ``lost``; ``degraded_after_m`` of fully observed
+    travel clears both.
     """
 
     residual_sigma_m: float = _key(
@@ -369,9 +370,9 @@ class HealthConfig:
         0.2, _positive(100.0, "m"), "refined and odometry steps farther apart than this: the scan is inconsistent"
     )
     degraded_after_m: float = _key(
-        2.0, _positive(1e5, "m"), "dead-reckoned travel before scans are degraded (as much observed travel clears it)"
+        2.0, _positive(1e5, "m"), "travel with a direction dead-reckoned before degraded (as much observed clears it)"
     )
-    lost_after_m: float = _key(10.0, _positive(1e6, "m"), "dead-reckoned travel before scans are lost")
+    lost_after_m: float = _key(10.0, _positive(1e6, "m"), "travel with the pose not observed before scans are lost")
 
 
 _GEODETIC_NAMES = ("latitude_deg", "longitude_deg", "height_ellipsoid_m")

@@ -272,7 +272,7 @@ class InputStatistics:
 
 @dataclass(frozen=True, slots=True)
 class HealthStretch:
-    """Consecutive scans with the same health flag (``summary.json`` keeps the lost ones).
+    """A stretch of consecutive scans flagged lost by the health signal.
 
     Attributes:
         first_scan, last_scan: input scan numbers of its first and last scan (as in the warnings).

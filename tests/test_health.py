@@ -78,8 +78,21 @@ def test_unobserved_travel_flags_degraded_then_lost_at_the_documented_distances(
     blind = measures(sigma_m=10 * CONFIG.observed_sigma_m)
     health = assess_all([measures()] * 5 + [blind] * 24)
     assert flags(health) == "o" * 5 + "ooo" + "d" * 16 + "l" * 5
-    assert [h.dead_reckoned_m for h in health[5:9]] == [0.5, 1.0, 1.5, 2.0]
+    assert [h.dead_reckoned_m for h in health[5:9]] == [h.blind_m for h in health[5:9]] == [0.5, 1.0, 1.5, 2.0]
     assert not any(h.observed for h in health[5:]) and all(h.observed for h in health[:5])
+
+
+def test_a_direction_taken_from_the_prior_degrades_but_never_loses_the_pose():
+    # Well observed but for one direction the registration took from the motion model.
+    one_from_prior = measures(degenerate_axes=1)
+    assert one_from_prior.observes_pose(CONFIG) and not one_from_prior.observes_every_direction(CONFIG)
+    health = assess_all([measures()] * 5 + [one_from_prior] * 100 + [measures()] * 4)
+    assert flags(health) == "o" * 5 + "ooo" + "d" * 97 + "ddd" + "o"
+    assert health[104].dead_reckoned_m == 50.0 and health[104].blind_m == 0.0
+    # Blind scans among them are counted apart: lost after 10 m of those alone.
+    mixed = assess_all(([one_from_prior] * 3 + [measures(sigma_m=1.0)]) * 25)
+    assert mixed[-1].blind_m == 12.5 and mixed[-1].flag is HealthFlag.LOST
+    assert [h.flag for h in mixed].index(HealthFlag.LOST) == 79  # the 20th blind scan
 
 
 def test_a_single_bad_scan_or_a_short_blind_patch_does_not_flag():
@@ -176,7 +189,7 @@ def test_measures_without_registration_or_previous_scan():
 
 def _health_with(flag_text: str) -> list[ScanHealth]:
     by_letter = {f.value[0]: f for f in HealthFlag}
-    return [ScanHealth(i * S, measures(), True, 0.0, by_letter[c]) for i, c in enumerate(flag_text)]
+    return [ScanHealth(i * S, measures(), True, 0.0, 0.0, by_letter[c]) for i, c in enumerate(flag_text)]
 
 
 def test_stretches_and_summary_measure_the_lost_scans_on_the_trajectory():
@@ -246,7 +259,7 @@ def test_health_csv_round_trip(tmp_path):
     write_health_csv(path, np.arange(34) + 7, health)
     lines = path.read_text().splitlines()
     assert lines[0] == ",".join(HEALTH_COLUMNS) and len(lines) == 35
-    assert lines[1].startswith("7,0,ok,0,0.000,0,0,0,6,inf,")
+    assert lines[1].startswith("7,0,ok,0,0.000,0.000,0,0,0,6,inf,")
     scans, back = read_health_csv(path)
     assert list(scans) == list(range(7, 41)) and [h.flag for h in back] == [h.flag for h in health]
     assert [h.measures for h in back] == [h.measures for h in health]  # these values print exactly in 6 digits
@@ -256,9 +269,12 @@ def test_health_csv_round_trip(tmp_path):
     "text, message",
     [
         ("a,b\n", r"not a health table"),
-        (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", r"health\.csv:2: 3 columns, expected 13"),
-        (",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,1,0,5,0,0.1,0,0,0\n", r"health\.csv:2: flag 'fine' is not one of"),
-        (",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,1,0,5,0,0.1,0,0,0\n", r"health\.csv:2: 'yes' is not 0 or 1"),
+        (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", r"health\.csv:2: 3 columns, expected 14"),
+        (
+            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0\n",
+            r"health\.csv:2: flag 'fine' is not one of",
+        ),
+        (",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0\n", r"health\.csv:2: 'yes' is not 0 or 1"),
     ],
 )
 def test_a_malformed_health_csv_names_the_file_and_line(tmp_path, text, message):

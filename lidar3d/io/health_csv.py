@@ -1,8 +1,9 @@
 """``health.csv``: the health of every scan of a run, one row per pose of the trajectory.
 
 Columns (:data:`HEALTH_COLUMNS`): ``scan`` (input scan number), ``stamp_ns``, ``flag`` (ok /
-degraded / lost), ``observed`` (0/1: the scan observed its pose), ``dead_reckoned_m`` (travel
-dead-reckoned since the pose was last observed), then the scan's measures: ``registered``,
+degraded / lost), ``observed`` (0/1: the scan observed every direction of its pose),
+``dead_reckoned_m`` and ``blind_m`` (travel with some direction dead-reckoned, and with the pose not
+observed, since the pose was last fully observed), then the scan's measures: ``registered``,
 ``motion_model_only`` (0/1), ``rows``, ``degenerate_axes``, ``weakest_sigma_m`` (``inf`` when the
 registration did not run), ``step_m``, ``odometry_disagreement_m``, ``prediction_offset_m``. See
 :mod:`lidar3d.mapping.health` for what each means.
@@ -29,6 +30,7 @@ HEALTH_COLUMNS = (
     "flag",
     "observed",
     "dead_reckoned_m",
+    "blind_m",
     "registered",
     "motion_model_only",
     "rows",
@@ -62,6 +64,7 @@ def write_health_csv(path: str | Path, scan_indices: Sequence[int] | np.ndarray,
                 h.flag.value,
                 int(h.observed),
                 f"{h.dead_reckoned_m:.3f}",
+                f"{h.blind_m:.3f}",
                 int(m.registered),
                 int(m.motion_model_only),
                 m.n_rows,
@@ -104,6 +107,7 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         measures=measures,
         observed=_boolean(row["observed"]),
         dead_reckoned_m=float(row["dead_reckoned_m"]),
+        blind_m=float(row["blind_m"]),
         flag=_flag(row["flag"]),
     )
     return int(row["scan"]), health

@@ -17,11 +17,16 @@ Three kinds of measure, each cheap to take from what the tracker already knows a
   from the motion model alone.
 
 A scan *observes* its pose when it was registered, ``sigma <= observed_sigma_m`` and the odometry
-agrees within ``max_disagreement_m``. :class:`HealthMonitor` keeps one small state, the travel
-dead-reckoned since the estimate was last observed: each scan that does not observe its pose adds
-its step length, ``degraded_after_m`` of observed travel in a row clears it. The flag is
-``degraded`` from ``degraded_after_m`` of dead-reckoned travel and ``lost`` from ``lost_after_m``, so
-a single noisy scan never flags and a standstill (no travel) never accumulates.
+agrees within ``max_disagreement_m``; it observes *every direction* when, besides, its registration
+took no direction from the prior (``degenerate_axes == 0``: today's registration replaces a direction
+whose eigenvalue is below ``mapping.degeneracy_threshold`` by the motion model's, so that direction is
+dead-reckoned however small its sigma). :class:`HealthMonitor` keeps a small state, two distances
+travelled since the estimate was last fully observed: ``dead_reckoned_m`` over scans that did not
+observe every direction and ``blind_m`` over scans that did not observe their pose; each such scan
+adds its step length, ``degraded_after_m`` of fully observed travel in a row clears both. The flag
+is ``degraded`` from ``dead_reckoned_m >= degraded_after_m`` (dead-reckoned along some direction for
+a while) and ``lost`` from ``blind_m >= lost_after_m`` (not observed for long), so a single noisy
+scan never flags and a standstill (no travel) never accumulates.
 """
 
 from __future__ import annotations
@@ -55,7 +60,7 @@ class HealthFlag(str, enum.Enum):
 
     OK = "ok"  # observed, or dead-reckoned over less than health.degraded_after_m
     DEGRADED = "degraded"  # dead-reckoned along some direction for health.degraded_after_m or more
-    LOST = "lost"  # dead-reckoned for health.lost_after_m or more: the pose may be metres wrong
+    LOST = "lost"  # pose not observed for health.lost_after_m or more: it may be metres wrong
 
 
 @dataclass(frozen=True, slots=True)
@@ -93,6 +98,10 @@ class ScanMeasures:
             and self.odometry_disagreement_m <= config.max_disagreement_m
         )
 
+    def observes_every_direction(self, config: HealthConfig) -> bool:
+        """The scan observed its pose and its registration took no direction from the prior."""
+        return self.observes_pose(config) and self.degenerate_axes == 0
+
 
 @dataclass(frozen=True, slots=True)
 class ScanHealth:
@@ -101,9 +110,12 @@ class ScanHealth:
     Attributes:
         stamp_ns: the scan's stamp.
         measures: what the scan told about its pose.
-        observed: the scan observed its pose (:meth:`ScanMeasures.observes_pose`).
-        dead_reckoned_m: travel dead-reckoned since the estimate was last observed, including this
-            scan's, metres.
+        observed: the scan observed every direction of its pose
+            (:meth:`ScanMeasures.observes_every_direction`).
+        dead_reckoned_m: travel over scans that did not observe every direction since the estimate
+            was last fully observed, including this scan's, metres.
+        blind_m: travel over scans that did not observe their pose (:meth:`ScanMeasures.observes_pose`)
+            in the same time, metres.
         flag: ok, degraded or lost.
     """
 
@@ -111,6 +123,7 @@ class ScanHealth:
     measures: ScanMeasures
     observed: bool
     dead_reckoned_m: float
+    blind_m: float
     flag: HealthFlag
 
 
@@ -182,27 +195,30 @@ class HealthMonitor:
 
     def __init__(self, config: HealthConfig) -> None:
         self._config = config
-        self._dead_reckoned_m = 0.0  # travel not observed since the last observed stretch
-        self._observed_m = 0.0  # observed travel in a row
+        self._dead_reckoned_m = 0.0  # travel with some direction from the prior, since last fully observed
+        self._blind_m = 0.0  # travel with the pose not observed, in the same time
+        self._observed_m = 0.0  # fully observed travel in a row
 
     def assess(self, stamp_ns: int, measures: ScanMeasures) -> ScanHealth:
         """The health of the next scan (stamp ``stamp_ns``) from its measures."""
         config = self._config
-        observed = measures.observes_pose(config)
+        observed = measures.observes_every_direction(config)
         if observed:
             self._observed_m += measures.step_m
             if self._observed_m >= config.degraded_after_m:
-                self._dead_reckoned_m = 0.0
+                self._dead_reckoned_m = self._blind_m = 0.0
         else:
             self._observed_m = 0.0
             self._dead_reckoned_m += measures.step_m
-        if self._dead_reckoned_m >= config.lost_after_m:
+            if not measures.observes_pose(config):
+                self._blind_m += measures.step_m
+        if self._blind_m >= config.lost_after_m:
             flag = HealthFlag.LOST
         elif self._dead_reckoned_m >= config.degraded_after_m:
             flag = HealthFlag.DEGRADED
         else:
             flag = HealthFlag.OK
-        return ScanHealth(stamp_ns, measures, observed, self._dead_reckoned_m, flag)
+        return ScanHealth(stamp_ns, measures, observed, self._dead_reckoned_m, self._blind_m, flag)
 
 
 def flag_stretches(flags: Sequence[HealthFlag], flag: HealthFlag) -> list[tuple[int, int]]:
