@@ -38,6 +38,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from lidar3d.errors import Lidar3dError
+from lidar3d.io.health_csv import read_health_csv
 from lidar3d.io.pcd import read_pcd
 from lidar3d.io.run_folder import (
     STAGING_NAME,
@@ -111,6 +112,14 @@ def verify_folder(folder: Path) -> tuple[RunSummary | None, str]:
         rows = len((folder / "loops.csv").read_text(encoding="utf-8").splitlines()) - 1
         if rows != summary.loop_candidates:
             return summary, f"loops.csv: {rows} rows, summary says {summary.loop_candidates}"
+    if summary.output("health.csv") is not None:
+        try:
+            _, health = read_health_csv(folder / "health.csv")
+        except Lidar3dError as err:
+            return summary, str(err)
+        lost = sum(h.flag.value == "lost" for h in health)
+        if summary.health is None or (len(health), lost) != (summary.health.scans, summary.health.lost_scans):
+            return summary, f"health.csv: {len(health)} rows, {lost} lost; the summary's health disagrees"
     return summary, ""
 
 

@@ -7,7 +7,7 @@ For every scenario (and seed):
    run on its bag in a fresh process (:mod:`suite_worker`), whose peak RSS is recorded (its
    ``VmHWM``; the ``ru_maxrss`` that ``os.wait4`` returns is kept beside it);
 3. each trajectory is scored against the ground truth and the simulated SPAN-CPT log
-   (:mod:`suite_metrics`);
+   (:mod:`suite_metrics`), and lidar3d's health flags against the truth (:mod:`health_check`);
 4. everything lands in ``eval/results/<UTC time>/`` (``results.json``, per-run outputs, SPAN
    reports, ``benchmarks.md``) and the tables in ``BENCHMARKS.md`` at the repository root
    (:mod:`suite_report`).
@@ -43,10 +43,13 @@ for entry in (str(REPO), str(HERE)):
     if entry not in sys.path:
         sys.path.insert(0, entry)
 
+from health_check import check_health  # noqa: E402
 from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: E402
 from suite_metrics import loop_closures, score_trajectory  # noqa: E402
 from suite_peers import PEERS, peer_version  # noqa: E402
 from suite_report import METHOD_NAMES, render_markdown  # noqa: E402
+
+from lidar3d.errors import Lidar3dError  # noqa: E402
 
 SCENARIOS = ("loop", "long", "hilly", "fast", "stops", "blind_turn", "figure_eight", "city_traffic", "forest_trail")
 DEFAULT_RESULTS = REPO / "eval" / "results"
@@ -126,7 +129,7 @@ def run_worker(
     return record
 
 
-def _evaluate(record: dict, case: CachedScenario, out_dir: Path) -> None:
+def _evaluate(record: dict, case: CachedScenario, out_dir: Path, method: str) -> None:
     trajectory = out_dir / "trajectory_tum.txt"
     record["scores"] = score_trajectory(
         trajectory,
@@ -136,6 +139,11 @@ def _evaluate(record: dict, case: CachedScenario, out_dir: Path) -> None:
         report_dir=out_dir / "span_eval",
     )
     record["loop_closures"] = loop_closures(record["run"].get("counts", {}))
+    if method == "lidar3d":
+        try:
+            record["health"] = check_health(out_dir, case.ground_truth_dense)
+        except Lidar3dError as err:  # reported in the health table, never hides the other scores
+            record["health"] = {"error": str(err)}
 
 
 # --- header facts ------------------------------------------------------------------------------
@@ -242,7 +250,7 @@ def run_suite(args: argparse.Namespace) -> int:
         )
         if record["status"] == "ok":
             try:
-                _evaluate(record, case, out_dir)
+                _evaluate(record, case, out_dir, method)
             except Exception as err:  # a scoring failure is reported in the table, never hides other runs
                 record["status"] = "failed"
                 record["error"] = f"evaluation: {type(err).__name__}: {err}"

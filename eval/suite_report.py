@@ -82,6 +82,51 @@ def _loops_text(row: dict) -> str:
     return (DASH if value is None else str(value)) + context
 
 
+def _percent(value) -> str:
+    return DASH if value is None else f"{100 * value:.1f} %"
+
+
+def _health_lines(
+    cases: list[tuple[str, int]], grid: dict[tuple[str, int], dict[str, dict]], multi_seed: bool
+) -> list[str]:
+    """The table of lidar3d's health flags scored against the truth (``eval/health_check.py``)."""
+    rows = [row for case in cases if (row := grid[case].get("lidar3d")) is not None and _ok(row)]
+    rows = [row for row in rows if isinstance(row.get("health"), dict)]
+    if not rows:
+        return []
+    out = [
+        "## lidar3d health signal against ground truth (`eval/health_check.py`)",
+        "",
+        "A scan is bad when the 10 m segment ending at it is off by more than 0.3 m once its start is aligned; "
+        "recall: bad scans flagged degraded or lost (target >= 90 %); false flags: good scans flagged (target < 5 %).",
+        "",
+    ]
+    cols = ["scenario", "scans ok / degraded / lost", "lost m", "bad scans", "recall", "false flags"]
+    out += [_row(cols), _row(["---"] * len(cols))]
+    for row in rows:
+        check = row["health"]
+        if "error" in check:
+            out.append(_row([_case_label(row, multi_seed), f"error: {check['error'][:80]}", "", "", "", ""]))
+            continue
+        flags = check.get("flags", {})
+        counts = " / ".join(str(flags.get(flag, 0)) for flag in ("ok", "degraded", "lost"))
+        lost_m = _get(row, "run", "health", "lost_m")
+        out.append(
+            _row(
+                [
+                    _case_label(row, multi_seed),
+                    counts,
+                    _num(lost_m, 1),
+                    f"{check.get('bad')} of {check.get('scored')}",
+                    _percent(check.get("recall")),
+                    _percent(check.get("false_flag_rate")),
+                ]
+            )
+        )
+    out.append("")
+    return out
+
+
 def render_markdown(rows: Sequence[dict], header: dict) -> str:
     """The whole ``BENCHMARKS.md`` text."""
     methods = [m for m in METHOD_NAMES if any(r["method"] == m for r in rows)]
@@ -209,6 +254,8 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                 )
             )
     out.append("")
+
+    out += _health_lines(cases, grid, multi_seed)
 
     # --- speed and memory -------------------------------------------------------------------
     out += ["## Speed and memory", ""]

@@ -88,6 +88,7 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool 
         "counts": summary.counts.as_dict(),
         "keyframes": summary.keyframes,
         "warnings": list(summary.warnings),
+        "health": summary.health.as_dict() if summary.health is not None else None,
         "pose_instant": "header stamp (sweep start)",
         "settings": {"config": "lidar3d defaults (see config.toml)" + ("" if loop_closure else ", loop closure off")},
     }

@@ -32,6 +32,7 @@ __all__ = [
     "Config",
     "FeatureConfig",
     "GnssConfig",
+    "HealthConfig",
     "InputConfig",
     "KeySpec",
     "ListRange",
@@ -346,6 +347,35 @@ class MappingConfig:
     redeskew_iterations: int = _key(4, _ITERATIONS, "iteration limit of the second registration")
 
 
+@dataclass(frozen=True, slots=True)
+class HealthConfig:
+    """The per-scan health signal (lidar3d.mapping.health, docs/stages/health.md).
+
+    A scan *observes* its pose when its registration ran, the pose's standard deviation along the
+    weakest direction of the scan's information is at most ``observed_sigma_m``, and its refined step
+    agrees with the scan-to-scan odometry step within ``max_disagreement_m``; it observes every
+    direction when its registration also took none from the prior. After ``degraded_after_m`` of
+    travel with some direction dead-reckoned the scans are ``degraded``; after ``lost_after_m`` of
+    travel with the pose not observed they are ``lost``; ``degraded_after_m`` of fully observed
+    travel clears both.
+    """
+
+    residual_sigma_m: float = _key(
+        0.05, _positive(1.0, "m"), "residual std behind the pose uncertainty, where the registration reports none"
+    )
+    observed_sigma_m: float = _key(
+        0.01, _positive(10.0, "m"), "a scan observes its pose when the std along its weakest direction is at most this"
+    )
+    lever_m: float = _key(10.0, _closed(0.0, 1000.0, "m"), "a rotation counts as the shift of a point this far away")
+    max_disagreement_m: float = _key(
+        0.2, _positive(100.0, "m"), "refined and odometry steps farther apart than this: the scan is inconsistent"
+    )
+    degraded_after_m: float = _key(
+        2.0, _positive(1e5, "m"), "travel with a direction dead-reckoned before degraded (as much observed clears it)"
+    )
+    lost_after_m: float = _key(10.0, _positive(1e6, "m"), "travel with the pose not observed before scans are lost")
+
+
 _GEODETIC_NAMES = ("latitude_deg", "longitude_deg", "height_ellipsoid_m")
 _GEODETIC_ORIGIN = (_closed(-90.0, 90.0, "deg"), _closed(-180.0, 180.0, "deg"), _closed(-1000.0, 20000.0, "m"))
 
@@ -470,6 +500,7 @@ class Config:
     odometry: OdometryConfig = field(default_factory=OdometryConfig)
     mapping: MappingConfig = field(default_factory=MappingConfig)
     motion: MotionConfig = field(default_factory=MotionConfig)
+    health: HealthConfig = field(default_factory=HealthConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
 
@@ -532,6 +563,11 @@ def _check_relations(config: Config) -> None:
         raise ConfigError(
             f"config segmentation.ground_rows: {config.segmentation.ground_rows} exceeds the "
             f"{sensor.n_rings} rings of {sensor.name}"
+        )
+    if config.health.lost_after_m < config.health.degraded_after_m:
+        raise ConfigError(
+            f"config health.lost_after_m: {config.health.lost_after_m!r} is below health.degraded_after_m "
+            f"({config.health.degraded_after_m!r}); a scan is degraded before it is lost"
         )
     if config.features.sharp_per_section > config.features.less_sharp_per_section:
         raise ConfigError(

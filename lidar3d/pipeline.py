@@ -10,6 +10,8 @@ Parts, each owning its state and answering with a record:
   module applies to the scan poses, the submap, the keyframe spacing and the tracker;
 * the dense voxel map, which a settled sweep enters (:meth:`SlamPipeline.rebuild_map` places every
   scan again after loop closures);
+* :class:`~lidar3d.mapping.health.HealthMonitor`: the health of every scan (ok / degraded / lost)
+  from what the tracker concluded;
 * :class:`~lidar3d.run_statistics.RunStatistics`: timings, counters, warnings.
 
 It writes nothing; adapters (``lidar3d.run``) iterate it, show progress and publish outputs. Each
@@ -32,12 +34,14 @@ from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.records import LoopCandidate
 from lidar3d.mapping.dense_map import add_scan_to_map, build_dense_map
+from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
 from lidar3d.mapping.sweep import SweepFeatures
 from lidar3d.mapping.tracker import SettledSweep, Tracker
 from lidar3d.mapping.voxel import VoxelMap
 from lidar3d.records import Scan, Trajectory
 from lidar3d.run_statistics import RunStatistics
+from lidar3d.summary import HealthSummary
 from lidar3d.timing import StageClock
 
 __all__ = ["STAGES", "ScanEstimate", "SlamPipeline", "SlamResult", "run_slam"]
@@ -58,6 +62,7 @@ class ScanEstimate:
         T_world_odom: (4,4) scan-to-scan odometry pose at the stamp.
         is_keyframe: the scan became a keyframe.
         motion_model_only: features were too few, so the pose came from the motion model.
+        health: how well the scan observed its pose, and its flag.
     """
 
     scan_index: int
@@ -66,6 +71,7 @@ class ScanEstimate:
     T_world_odom: np.ndarray
     is_keyframe: bool
     motion_model_only: bool
+    health: ScanHealth
 
 
 @dataclass(frozen=True, slots=True)
@@ -77,10 +83,13 @@ class SlamResult:
         odometry: scan-to-scan odometry pose of every processed scan.
         keyframes: keyframe poses (stamps of the keyframe scans).
         keyframe_scan_indices: (K,) scan index of each keyframe.
+        scan_indices: (N,) scan index (position in the input stream) of each trajectory pose.
         map_points: (M,3) dense voxel map, world frame.
         map_intensity: (M,) mean intensity per voxel.
         timings_ms: stage name -> (N,) milliseconds per processed scan.
         counts: named counters (scans, dropped stamps, motion-model scans, degenerate scans...).
+        health: the health of every processed scan, in trajectory order.
+        health_summary: the health flags counted, with the lost stretches measured on ``trajectory``.
         warnings: human-readable warnings collected during the run.
         partial: the run stopped before the end of the input.
         loop_ms_total: milliseconds spent in loop detection and the pose graph.
@@ -92,10 +101,13 @@ class SlamResult:
     odometry: Trajectory
     keyframes: Trajectory
     keyframe_scan_indices: np.ndarray
+    scan_indices: np.ndarray
     map_points: np.ndarray
     map_intensity: np.ndarray
     timings_ms: dict[str, np.ndarray]
     counts: dict[str, int]
+    health: tuple[ScanHealth, ...]
+    health_summary: HealthSummary
     warnings: tuple[str, ...] = field(default=())
     partial: bool = False
     loop_ms_total: float = 0.0
@@ -125,6 +137,7 @@ class SlamPipeline:
             distance_m=mp.keyframe_distance_m, angle_deg=mp.keyframe_angle_deg, min_surface_points=mp.min_rows
         )
         self.loop = LoopCloser(config.loop) if config.loop.enabled else None
+        self.health = HealthMonitor(config.health)
         self.stats = RunStatistics()
         self._map = VoxelMap(mp.map_voxel_m)
         self._estimates: list[ScanEstimate] = []
@@ -153,7 +166,9 @@ class SlamPipeline:
             return None
         prepared = scan if isinstance(scan, PreparedScan) else prepare_scan(scan, self.config)
         self.stats.add_timings(prepared.stage_ms)
+        previous = self._estimates[-1] if self._estimates else None
         track = self.tracker.track(prepared)
+        health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health))
         self.stats.add_timings(track.timings_ms)
         if track.registration is not None and track.registration.degenerate_axes:
             self.stats.count("degenerate_scans")
@@ -178,7 +193,7 @@ class SlamPipeline:
                 self._add_keyframe(index, stamp_ns, T_world_lidar, sweep.deskewed(track.deskew_twist))
         self.stats.add_timings(clock.ms)
         estimate = ScanEstimate(
-            index, stamp_ns, T_world_lidar, track.T_world_odom, is_keyframe, track.motion_model_only
+            index, stamp_ns, T_world_lidar, track.T_world_odom, is_keyframe, track.motion_model_only, health
         )
         self._estimates.append(estimate)
         self.stats.count("scans")
@@ -206,22 +221,29 @@ class SlamPipeline:
         keyframes = self.submap.keyframes
         odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)
         map_points, map_intensity = self._map.points_and_intensity()
+        trajectory = self._trajectory()
+        scan_indices = np.array([e.scan_index for e in self._estimates], dtype=np.int64)
+        health = tuple(e.health for e in self._estimates)
+        health_summary = summarize_health(health, scan_indices, trajectory.positions_m)
         return SlamResult(
-            trajectory=self._trajectory(),
+            trajectory=trajectory,
             odometry=Trajectory(np.array([e.stamp_ns for e in self._estimates], dtype=np.int64), odometry),
             keyframes=Trajectory(
                 np.array([kf.stamp_ns for kf in keyframes], dtype=np.int64), self.submap.poses.reshape(-1, 4, 4)
             ),
             keyframe_scan_indices=np.array([kf.scan_index for kf in keyframes], dtype=np.int64),
+            scan_indices=scan_indices,
             map_points=map_points,
             map_intensity=map_intensity,
             timings_ms=self.stats.timings_ms(),
             loop_ms_total=self.stats.loop_ms,
             counts=dict(self.stats.counts),
-            warnings=self.stats.warnings(self._n_seen),
+            warnings=self.stats.warnings(self._n_seen, health_summary),
             partial=partial,
             loop_candidates=tuple(self.loop.candidates) if self.loop else (),
             pose_graph_g2o=self.loop.graph.g2o_text(self.submap.poses) if self.loop and len(self.submap) else "",
+            health=health,
+            health_summary=health_summary,
         )
 
     def _trajectory(self) -> Trajectory:

@@ -5,6 +5,8 @@ Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
 * ``trajectory_tum.txt`` / ``trajectory_kitti.txt`` (+ ``.times.txt``): refined pose of every scan;
 * ``odometry_tum.txt``: scan-to-scan odometry; ``keyframes_tum.txt``: keyframe poses;
 * ``map.pcd``: dense voxel map (deskewed scans placed with the final poses), with intensity;
+* ``health.csv``: the health of every scan (ok / degraded / lost, with its measures;
+  :mod:`lidar3d.mapping.health`), counted in the summary's ``health``;
 * ``loops.csv``, ``pose_graph.g2o``, ``trajectory_loops.png``: the loop outputs (loop closure on);
 * ``summary.json``: counts, length, runtime, per-stage timing, warnings, ``partial`` flag and the
   manifest of every other file (:class:`lidar3d.summary.RunSummary`; read it back with
@@ -36,10 +38,12 @@ from lidar3d import __version__
 from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import Lidar3dError, OutputError
 from lidar3d.io.atomic import write_text_atomic
+from lidar3d.io.health_csv import write_health_csv
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.run_folder import existing_run_outputs, publish_set
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import write_kitti, write_tum
+from lidar3d.mapping.health import ScanHealth
 from lidar3d.pipeline import SlamPipeline, SlamResult
 from lidar3d.prefetch import open_prepared_scans
 from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
@@ -91,6 +95,7 @@ def _summary(
         counts=RunCounts(**result.counts),
         warnings=(*result.warnings, *_input_warnings(input_stats)),
         pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
+        health=result.health_summary,
         input_stats=input_stats,
         map_rebuild_s=map_rebuild_s,
     )
@@ -120,7 +125,14 @@ class _RunPublisher:
         """Publish trajectories, the loop outputs, (optionally) the map, and the summary as one set."""
         n, map_points = len(result.trajectory), len(result.map_points)
         rows = dict.fromkeys(
-            ("trajectory_tum.txt", "trajectory_kitti.txt", "trajectory_kitti.times.txt", "odometry_tum.txt"), n
+            (
+                "trajectory_tum.txt",
+                "trajectory_kitti.txt",
+                "trajectory_kitti.times.txt",
+                "odometry_tum.txt",
+                "health.csv",
+            ),
+            n,
         )
         rows.update({"keyframes_tum.txt": len(result.keyframes), "loops.csv": len(result.loop_candidates)})
         keep = [] if self.summary is None else ["config.toml"]
@@ -139,6 +151,7 @@ class _RunPublisher:
             write_kitti(staging / "trajectory_kitti.txt", result.trajectory)
             write_tum(staging / "odometry_tum.txt", result.odometry)
             write_tum(staging / "keyframes_tum.txt", result.keyframes)
+            write_health_csv(staging / "health.csv", result.scan_indices, result.health)
             if with_map:
                 intensity = result.map_intensity.astype(np.float32)
                 write_pcd(staging / "map.pcd", result.map_points, intensity=intensity)
@@ -184,6 +197,7 @@ def run_bag(
     span_log: str | Path | None = None,
     extrinsics: str | Path | None = None,
     on_scan: Callable[[int, int | None], None] | None = None,
+    on_health: Callable[[ScanHealth], None] | None = None,
     checkpoint_every_s: float = 10.0,
     map_checkpoint_every_s: float = 60.0,
     prefetch: bool = True,
@@ -196,6 +210,7 @@ def run_bag(
         span_log: a NovAtel SPAN log to evaluate the trajectory against (report in ``eval/``).
         extrinsics: lidar-to-IMU extrinsic file for that evaluation.
         on_scan: called as ``on_scan(done, total)`` after each scan (progress display).
+        on_health: called with the health of each scan that got a pose, before ``on_scan``.
         prefetch: read the bag and run the front end in a second process, a few scans ahead
             (uses a second core; turn off when several runs share the cores, as in a batch).
         overwrite: replace the outputs of an earlier run in ``out_dir`` (they stay until this run
@@ -230,7 +245,9 @@ def run_bag(
             done = 0
             for prepared, read_scan_ms in stream:
                 read_ms.append(read_scan_ms)
-                pipeline.process(prepared)
+                estimate = pipeline.process(prepared)
+                if on_health is not None and estimate is not None:
+                    on_health(estimate.health)
                 done += 1
                 if on_scan is not None:
                     on_scan(done, total)

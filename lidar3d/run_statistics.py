@@ -2,7 +2,8 @@
 
 The counters (``scans``, ``dropped_duplicate_stamps``, ``motion_model_scans``,
 ``degenerate_scans``, ``redeskewed_scans``, ``loop_closures``...) end up in ``summary.json``.
-Stretches of scans whose pose came from the motion model alone are reported as one warning each.
+Stretches of scans whose pose came from the motion model alone are reported as one warning each;
+the stretches the health signal flagged lost (:mod:`lidar3d.mapping.health`) as one warning line.
 """
 
 from __future__ import annotations
@@ -11,6 +12,8 @@ import logging
 from collections import defaultdict
 
 import numpy as np
+
+from lidar3d.summary import HealthSummary
 
 __all__ = ["RunStatistics"]
 
@@ -59,11 +62,15 @@ class RunStatistics:
         """Stage name -> (N,) milliseconds per processed scan."""
         return {k: np.asarray(v) for k, v in self._timings.items()}
 
-    def warnings(self, n_scans_seen: int) -> tuple[str, ...]:
-        """The warnings so far; an open motion-model stretch is reported up to the last scan."""
-        if self._fallback_start is None:
-            return tuple(self._warnings)
-        return (*self._warnings, _fallback_message(self._fallback_start, n_scans_seen))
+    def warnings(self, n_scans_seen: int, health: HealthSummary | None = None) -> tuple[str, ...]:
+        """The warnings so far; an open motion-model stretch is reported up to the last scan, and the
+        lost stretches of ``health`` (the run's health so far) in one line at the end."""
+        warnings = list(self._warnings)
+        if self._fallback_start is not None:
+            warnings.append(_fallback_message(self._fallback_start, n_scans_seen))
+        if health is not None and health.lost_stretches:
+            warnings.append(_lost_message(health))
+        return tuple(warnings)
 
     def _close_fallback(self, end_index: int) -> None:
         assert self._fallback_start is not None
@@ -75,3 +82,22 @@ class RunStatistics:
 
 def _fallback_message(start: int, end_index: int) -> str:
     return f"scans {start}-{end_index - 1}: too few features, pose from the motion model"
+
+
+#: Lost stretches named one by one in the warning; the rest are counted.
+_STRETCHES_NAMED = 5
+
+
+def _lost_message(health: HealthSummary) -> str:
+    """One line naming the lost stretches of a run, e.g. ``health: lost on 1 stretch (151.2 m, 38 %
+    of the scans): scans 330-598 (151.2 m); poses there may be metres wrong, see health.csv``."""
+    stretches = health.lost_stretches
+    named = [f"{s.first_scan}-{s.last_scan} ({s.length_m:.1f} m)" for s in stretches[:_STRETCHES_NAMED]]
+    if len(stretches) > _STRETCHES_NAMED:
+        named.append(f"and {len(stretches) - _STRETCHES_NAMED} more")
+    share = 100.0 * health.lost_scans / health.scans if health.scans else 0.0
+    plural = "es" if len(stretches) != 1 else ""
+    return (
+        f"health: lost on {len(stretches)} stretch{plural} ({health.lost_m:.1f} m, {share:.0f} % of the scans): "
+        f"scans {', '.join(named)}; poses there may be metres wrong, see health.csv"
+    )

@@ -12,6 +12,8 @@ Layout of ``summary.json`` (keys in this order; optional keys are left out when 
     deskew, odometry, mapping, map_update[, redeskew]}, map_points, loop_closures, loop_candidates,
     loop_ms_total, counts {scans[, redeskewed_scans, motion_model_scans, degenerate_scans,
     loop_closures, dropped_duplicate_stamps, dropped_out_of_order_stamps]}, warnings, pose_stamp
+    [, health {ok_scans, degraded_scans, lost_scans, ok_fraction, lost_m, lost_stretches [{first_scan,
+    last_scan, start_stamp_ns, end_stamp_ns, length_m}, ...]}]
     [, input_stats {points_kept, nonfinite_dropped, below_min_range_dropped, absurd_coordinates_dropped,
     outlier_times_dropped, messages_lost, scans_timed_from_azimuth}]
     [, map_rebuild_s] [, evaluation {report, table, ate {translation_3d_m, horizontal_m,
@@ -41,6 +43,8 @@ __all__ = [
     "AteSummary",
     "ErrorSummary",
     "EvaluationSummary",
+    "HealthStretch",
+    "HealthSummary",
     "InputStatistics",
     "OutputFile",
     "RunCounts",
@@ -118,6 +122,11 @@ class _JsonObject:
 
     def optional_record(self, name: str, parse: Callable[[_JsonObject], _T]) -> _T | None:
         return self.record(name, parse) if name in self.data else None
+
+    def records(self, name: str, parse: Callable[[_JsonObject], _T]) -> tuple[_T, ...]:
+        """A required list of objects, each parsed by ``parse`` (errors name ``key[i]``)."""
+        items = self._get(name, lambda v: isinstance(v, list), "a list", True)
+        return tuple(parse(_JsonObject(item, f"{self.dotted(name)}[{i}]", self.source)) for i, item in enumerate(items))
 
     def finish(self) -> None:
         """Reject keys that no field took (a misspelt or foreign key)."""
@@ -271,6 +280,80 @@ class InputStatistics:
     @classmethod
     def _parse(cls, obj: _JsonObject) -> InputStatistics:
         parsed = cls(**{field.name: obj.integer(field.name) for field in dataclasses.fields(cls)})
+        obj.finish()
+        return parsed
+
+
+@dataclass(frozen=True, slots=True)
+class HealthStretch:
+    """A stretch of consecutive scans flagged lost by the health signal.
+
+    Attributes:
+        first_scan, last_scan: input scan numbers of its first and last scan (as in the warnings).
+        start_stamp_ns, end_stamp_ns: stamps of those scans.
+        length_m: path length of the trajectory over the stretch, from the scan before it to its last
+            scan, metres (rounded to 1 mm).
+    """
+
+    first_scan: int
+    last_scan: int
+    start_stamp_ns: int
+    end_stamp_ns: int
+    length_m: float
+
+    def as_dict(self) -> dict[str, int | float]:
+        return {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+
+    @classmethod
+    def _parse(cls, obj: _JsonObject) -> HealthStretch:
+        parsed = cls(
+            first_scan=obj.integer("first_scan"),
+            last_scan=obj.integer("last_scan"),
+            start_stamp_ns=obj.integer("start_stamp_ns"),
+            end_stamp_ns=obj.integer("end_stamp_ns"),
+            length_m=obj.number("length_m"),
+        )
+        obj.finish()
+        return parsed
+
+
+@dataclass(frozen=True, slots=True)
+class HealthSummary:
+    """The per-scan health flags of a run (``health.csv``), counted.
+
+    Attributes:
+        ok_scans, degraded_scans, lost_scans: scans with each flag (they add up to the run's scans).
+        ok_fraction: ``ok_scans`` / scans (rounded to 0.0001; 1.0 for a run without scans).
+        lost_m: path length over the lost stretches, metres (rounded to 1 mm).
+        lost_stretches: every stretch of consecutive lost scans, in order.
+    """
+
+    ok_scans: int
+    degraded_scans: int
+    lost_scans: int
+    ok_fraction: float
+    lost_m: float
+    lost_stretches: tuple[HealthStretch, ...] = ()
+
+    @property
+    def scans(self) -> int:
+        return self.ok_scans + self.degraded_scans + self.lost_scans
+
+    def as_dict(self) -> dict[str, Any]:
+        data: dict[str, Any] = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
+        data["lost_stretches"] = [stretch.as_dict() for stretch in self.lost_stretches]
+        return data
+
+    @classmethod
+    def _parse(cls, obj: _JsonObject) -> HealthSummary:
+        parsed = cls(
+            ok_scans=obj.integer("ok_scans"),
+            degraded_scans=obj.integer("degraded_scans"),
+            lost_scans=obj.integer("lost_scans"),
+            ok_fraction=obj.number("ok_fraction"),
+            lost_m=obj.number("lost_m"),
+            lost_stretches=obj.records("lost_stretches", HealthStretch._parse),
+        )
         obj.finish()
         return parsed
 
@@ -438,6 +521,8 @@ class RunSummary:
         counts: the pipeline's event counters.
         warnings: warnings of the run, one line each.
         pose_stamp: which instant of a scan each pose belongs to, in words.
+        health: the per-scan health flags counted, with the lost stretches (None: a summary from
+            before the health signal).
         input_stats: what reading the input dropped and kept (None until the input was read to its end).
         map_rebuild_s: time to rebuild the dense map after loop closures, seconds, rounded to 1 ms
             (None: no rebuild).
@@ -465,6 +550,7 @@ class RunSummary:
     counts: RunCounts
     warnings: tuple[str, ...]
     pose_stamp: str
+    health: HealthSummary | None = None
     input_stats: InputStatistics | None = None
     map_rebuild_s: float | None = None
     evaluation: EvaluationSummary | None = None
@@ -498,6 +584,8 @@ class RunSummary:
             "warnings": list(self.warnings),
             "pose_stamp": self.pose_stamp,
         }
+        if self.health is not None:
+            data["health"] = self.health.as_dict()
         if self.input_stats is not None:
             data["input_stats"] = self.input_stats.as_dict()
         if self.map_rebuild_s is not None:
@@ -543,6 +631,7 @@ class RunSummary:
             counts=obj.record("counts", RunCounts._parse),
             warnings=obj.texts("warnings"),
             pose_stamp=obj.text("pose_stamp"),
+            health=obj.optional_record("health", HealthSummary._parse),
             input_stats=obj.optional_record("input_stats", InputStatistics._parse),
             map_rebuild_s=obj.optional_number("map_rebuild_s"),
             evaluation=obj.optional_record("evaluation", EvaluationSummary._parse),

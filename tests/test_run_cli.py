@@ -216,7 +216,7 @@ def test_log_lines_never_share_a_line_with_the_bar(simulated, tmp_path, monkeypa
     assert records == ["INFO: record after scan 3", "INFO: record after scan 6"]
     bars = [line for line in lines if BAR.search(line)]
     assert len(bars) == 1 and lines[-1] == bars[0], lines
-    assert re.match(r"run: 100%\|#+\| 6/6 \[\d\d:\d\d<00:00, +\d+\.\d\d scans/s\]$", bars[0]), bars[0]
+    assert re.match(r"run: 100%\|#+\| 6/6 \[\d\d:\d\d<00:00, +\d+\.\d\d scans/s, health ok 100%\]$", bars[0]), bars[0]
 
 
 @pytest.mark.parametrize("quiet, stream", [(True, Terminal), (False, io.StringIO)], ids=["-q", "pipe"])

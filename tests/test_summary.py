@@ -12,6 +12,8 @@ from lidar3d.summary import (
     AteSummary,
     ErrorSummary,
     EvaluationSummary,
+    HealthStretch,
+    HealthSummary,
     InputStatistics,
     OutputFile,
     RunCounts,
@@ -115,8 +117,19 @@ def example_summary(**changes) -> RunSummary:
         example_summary(
             evaluation=dataclasses.replace(example_summary().evaluation, ate=AteSummary(*[error_summary(None, 0)] * 4))
         ),
+        example_summary(
+            health=HealthSummary(
+                62,
+                4,
+                14,
+                0.775,
+                31.25,
+                (HealthStretch(40, 53, 1_715_677_204_000_000_000, 1_715_677_205_300_000_000, 31.25),),
+            )
+        ),
+        example_summary(health=HealthSummary(80, 0, 0, 1.0, 0.0)),
     ],
-    ids=["complete", "evaluation-error", "checkpoint", "manifest", "no-associated-pose"],
+    ids=["complete", "evaluation-error", "checkpoint", "manifest", "no-associated-pose", "health-lost", "health-ok"],
 )
 def test_json_round_trip_gives_the_same_record_and_text(summary, tmp_path):
     text = summary.to_json()
@@ -153,7 +166,9 @@ def test_a_summary_written_by_run_bag_parses_and_is_rewritten_byte_for_byte(tmp_
     text = (out / "summary.json").read_text()
     summary = read_summary(out / "summary.json")
     assert summary == outcome.summary and summary.to_json() == text
-    assert list(json.loads(text)) == [*TOP_LEVEL_KEYS, "input_stats", "evaluation", "outputs"]
+    assert list(json.loads(text)) == [*TOP_LEVEL_KEYS, "health", "input_stats", "evaluation", "outputs"]
+    assert summary.health is not None and summary.health.scans == summary.scans
+    assert summary.output("health.csv").rows == summary.scans
     paths = [entry.path for entry in summary.outputs]
     assert paths == sorted(paths) and {"config.toml", "eval/report.json", "map.pcd", "trajectory_tum.txt"} <= set(paths)
     assert summary.output("trajectory_tum.txt").rows == summary.scans

@@ -145,6 +145,8 @@ def _describe(result: JobResult) -> str:
     if result.status is JobStatus.DONE:
         scans, length_m, scans_per_s = (s.scans, s.length_m, s.scans_per_s) if s is not None else (0, 0.0, 0.0)
         text = f"{scans} scans, {length_m:.1f} m, {result.wall_s:.1f} s ({scans_per_s:.1f} scans/s)"
+        if s is not None and s.health is not None and s.health.lost_scans:
+            text += f"; health: lost over {s.health.lost_m:.1f} m"
         return text + (f"; {result.note}" if result.note else "")
     return result.error or ""
 

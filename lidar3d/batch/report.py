@@ -38,6 +38,9 @@ ROW_FIELDS = (
     "rpe_rmse_m",
     "rpe_kitti_percent",
     "map_points",
+    "health",
+    "health_ok_percent",
+    "lost_m",
     "warnings",
     "span_log",
     "span_match",
@@ -61,6 +64,7 @@ _COLUMNS = (
     ("ate_rmse_m", "ATE RMSE [m]", "num"),
     ("rpe_rmse_m", "RPE {rpe} [m]", "num"),
     ("rpe_kitti_percent", "KITTI RPE [%]", "num"),
+    ("health", "health", "num"),
     ("span_log", "SPAN log", "text"),
     ("plots", "plots", "text"),
     ("error", "error / note", "text"),
@@ -99,6 +103,15 @@ def _rpe(eval_report: Mapping[str, Any] | None, distance_m: float | None) -> tup
     return by_distance, kitti_pct
 
 
+def _health(summary: RunSummary | None) -> tuple[str | None, float | None, float | None]:
+    """(worst flag of the run, share of ok scans in %, metres lost) of a run's health; Nones without."""
+    health = summary.health if summary is not None else None
+    if health is None:
+        return None, None, None
+    worst = "lost" if health.lost_scans else "degraded" if health.degraded_scans else "ok"
+    return worst, round(100.0 * health.ok_fraction, 2), health.lost_m
+
+
 def bag_row(
     *,
     name: str,
@@ -122,6 +135,7 @@ def bag_row(
     plots = [p.relative_to(batch_dir).as_posix() for p in pngs]  # loop top view, then evaluation plots
     ate = s.evaluation.ate if s is not None and s.evaluation is not None else None
     rpe_m, rpe_pct = _rpe(eval_report, rpe_distance_m)
+    health, health_ok_percent, lost_m = _health(s)
     return {
         "name": name,
         "status": status,
@@ -136,6 +150,9 @@ def bag_row(
         "rpe_rmse_m": rpe_m,
         "rpe_kitti_percent": rpe_pct,
         "map_points": s.map_points if s is not None else None,
+        "health": health,
+        "health_ok_percent": health_ok_percent,
+        "lost_m": lost_m,
         "warnings": len(s.warnings) if s is not None else None,
         "span_log": str(span_log) if span_log else None,
         "span_match": span_match,
@@ -187,6 +204,8 @@ tr:hover td{background:#fafbfc}
 .status-up-to-date{background:#e0f2fe;color:#075985}
 .status-failed{background:#fee2e2;color:#991b1b}
 .status-interrupted,.status-not-started{background:#fef9c3;color:#854d0e}
+td.health-lost{color:#991b1b;font-weight:600}
+td.health-degraded{color:#854d0e}
 td.error{color:#991b1b;max-width:32rem;word-break:break-word}
 td.note{color:#854d0e;max-width:32rem;word-break:break-word}
 td.path{max-width:16rem;overflow-wrap:anywhere;color:#5b6670}
@@ -267,12 +286,28 @@ def _cell(field: str, kind: str, row: Mapping[str, Any]) -> str:
         text = row.get("error") or row.get("note") or ""
         css = "error" if row.get("error") else "note"
         return f'<td class="{css}" data-value="{esc(text)}">{esc(text)}</td>'
+    if field == "health":
+        return _health_cell(row)
     if kind == "num":
         number = _number(value)
         shown = _fmt(value, _DIGITS.get(field, 3))
         data = "" if number is None else repr(number)
         return f'<td class="num" data-value="{data}">{esc(shown)}</td>'
     return f'<td data-value="{esc(str(value or ""))}">{esc(str(value or ""))}</td>'
+
+
+def _health_cell(row: Mapping[str, Any]) -> str:
+    """``ok 100 %``, ``degraded: ok 93 %`` or ``lost 62.3 m: ok 71 %``; sorted by the share of ok scans."""
+    flag, percent = row.get("health"), _number(row.get("health_ok_percent"))
+    if flag is None or percent is None:
+        return '<td data-value=""></td>'
+    text = f"ok {percent:.0f} %"
+    if flag == "lost":
+        text = f"lost {_fmt(row.get('lost_m'), 1)} m: {text}"
+    elif flag == "degraded":
+        text = f"degraded: {text}"
+    esc = html.escape
+    return f'<td class="health-{esc(str(flag))}" data-value="{percent!r}">{esc(text)}</td>'
 
 
 def _html_text(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> str:

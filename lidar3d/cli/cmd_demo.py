@@ -44,6 +44,7 @@ def run(args: argparse.Namespace) -> int:
             span_log=outputs.span_log,
             extrinsics=outputs.extrinsics,
             on_scan=progress.update,
+            on_health=progress.note_health,
             overwrite=True,  # as the simulation above: the demo folder is its own
         )
     finally:

@@ -73,6 +73,7 @@ def run(args: argparse.Namespace) -> int:
             span_log=args.span,
             extrinsics=args.extrinsics,
             on_scan=progress.update,
+            on_health=progress.note_health,
             overwrite=args.overwrite,
         )
     finally:
@@ -82,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
         f"{s.scans} scans, {s.length_m:.1f} m, {s.runtime_s:.1f} s ({s.scans_per_s:.1f} scans/s), "
         f"{s.keyframes} keyframes, {s.loop_closures} loop closures, {s.map_points} map points"
     )
+    if s.health is not None:
+        h = s.health
+        print(f"health: {100 * h.ok_fraction:.0f} % of the scans ok, {h.degraded_scans} degraded, {h.lost_scans} lost")
     for warning in s.warnings:
         print(f"warning: {warning}")
     if s.evaluation is not None:

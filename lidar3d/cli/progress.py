@@ -11,20 +11,25 @@ from __future__ import annotations
 
 import logging
 import sys
-from typing import TextIO
+from typing import TYPE_CHECKING, TextIO
 
 from tqdm import tqdm
+
+if TYPE_CHECKING:
+    from lidar3d.mapping.health import ScanHealth
 
 __all__ = ["ProgressSafeHandler", "ScanProgress"]
 
 #: Redraw a bar at most this often [s].
 REDRAW_INTERVAL_S = 0.2
-_WITH_TOTAL = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}, {rate_noinv_fmt}]"
-_WITHOUT_TOTAL = "{desc}: {n_fmt} scans [{elapsed}, {rate_noinv_fmt}]"
+_WITH_TOTAL = "{desc}: {percentage:3.0f}%|{bar}| {n_fmt}/{total_fmt} [{elapsed}<{remaining}, {rate_noinv_fmt}{postfix}]"
+_WITHOUT_TOTAL = "{desc}: {n_fmt} scans [{elapsed}, {rate_noinv_fmt}{postfix}]"
 
 
 class ScanProgress:
-    """The bar of one SLAM run on stderr: scans done/total, share done, time spent and left, scans/s.
+    """The bar of one SLAM run on stderr: scans done/total, share done, time spent and left, scans/s,
+    and, once :meth:`note_health` was called, the share of scans whose health is ok (``health ok
+    98%``), followed by the latest scan's flag when that is not ok (``now lost``).
 
     The rate is the average since the bar was made (tqdm's ``smoothing=0``), the time left the
     scans still to go at that rate.
@@ -46,6 +51,16 @@ class ScanProgress:
             dynamic_ncols=True,
             bar_format=_WITHOUT_TOTAL,
         )
+        self._n_health = 0
+        self._n_ok = 0
+
+    def note_health(self, health: ScanHealth) -> None:
+        """Count the health of the latest scan; shown at the next redraw."""
+        self._n_health += 1
+        ok = health.flag.value == "ok"
+        self._n_ok += ok
+        text = f"health ok {100.0 * self._n_ok / self._n_health:.0f}%"
+        self._bar.set_postfix_str(text if ok else f"{text}, now {health.flag.value}", refresh=False)
 
     def update(self, done: int, total: int | None) -> None:
         """Record that ``done`` scans of ``total`` (None: unknown) are processed; redraw if it is time."""

@@ -1,7 +1,7 @@
 """A run folder as one consistent set: publication by staging and renames, completion after a kill, checks.
 
-A run folder holds the outputs of one run (trajectories, ``map.pcd``, loop outputs, ``config.toml``,
-``eval/``) and ``summary.json``, whose manifest (:attr:`lidar3d.summary.RunSummary.outputs`) names
+A run folder holds the outputs of one run (trajectories, ``health.csv``, ``map.pcd``, loop outputs,
+``config.toml``, ``eval/``) and ``summary.json``, whose manifest (:attr:`lidar3d.summary.RunSummary.outputs`) names
 every other file of the set with its size, SHA-256 and rows. :func:`publish_set` replaces the whole
 set in three steps:
 
@@ -65,6 +65,7 @@ RUN_OUTPUT_NAMES = (
     "trajectory_kitti.times.txt",
     "odometry_tum.txt",
     "keyframes_tum.txt",
+    "health.csv",
     "map.pcd",
     "loops.csv",
     "pose_graph.g2o",
@@ -228,7 +229,7 @@ def publish_set(
 def _expected_rows(summary: RunSummary) -> dict[str, int]:
     """Rows each file must hold by the summary's own counts."""
     expected = dict.fromkeys(
-        ("trajectory_tum.txt", "trajectory_kitti.txt", "trajectory_kitti.times.txt", "odometry_tum.txt"),
+        ("trajectory_tum.txt", "trajectory_kitti.txt", "trajectory_kitti.times.txt", "odometry_tum.txt", "health.csv"),
         summary.scans,
     )
     expected.update({"keyframes_tum.txt": summary.keyframes, "map.pcd": summary.map_points})

@@ -1,0 +1,143 @@
+"""``health.csv``: the health of every scan of a run, one row per pose of the trajectory.
+
+Columns (:data:`HEALTH_COLUMNS`): ``scan`` (input scan number), ``stamp_ns``, ``flag`` (ok /
+degraded / lost), ``observed`` (0/1: the scan observed every direction of its pose),
+``dead_reckoned_m`` and ``blind_m`` (travel with some direction dead-reckoned, and with the pose not
+observed, since the pose was last fully observed), then the scan's measures: ``registered``,
+``motion_model_only`` (0/1), ``rows``, ``degenerate_axes``, ``weakest_sigma_m`` (``inf`` when the
+registration did not run), ``step_m``, ``odometry_disagreement_m``, ``prediction_offset_m``. See
+:mod:`lidar3d.mapping.health` for what each means.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from lidar3d.errors import Lidar3dError
+from lidar3d.io.atomic import write_text_atomic
+from lidar3d.mapping.health import HealthFlag, ScanHealth, ScanMeasures
+
+__all__ = ["HEALTH_COLUMNS", "HealthFileError", "read_health_csv", "write_health_csv"]
+
+HEALTH_COLUMNS = (
+    "scan",
+    "stamp_ns",
+    "flag",
+    "observed",
+    "dead_reckoned_m",
+    "blind_m",
+    "registered",
+    "motion_model_only",
+    "rows",
+    "degenerate_axes",
+    "weakest_sigma_m",
+    "step_m",
+    "odometry_disagreement_m",
+    "prediction_offset_m",
+)
+
+
+class HealthFileError(Lidar3dError):
+    """A ``health.csv`` is missing or malformed."""
+
+
+def _number(value: float) -> str:
+    return format(value, ".6g")
+
+
+def write_health_csv(path: str | Path, scan_indices: Sequence[int] | np.ndarray, health: Sequence[ScanHealth]) -> None:
+    """Write one row per scan (``scan_indices[i]`` is the input scan number of ``health[i]``), atomically."""
+    buffer = io.StringIO()
+    writer = csv.writer(buffer, lineterminator="\n")
+    writer.writerow(HEALTH_COLUMNS)
+    for scan, h in zip(scan_indices, health, strict=True):
+        m = h.measures
+        writer.writerow(
+            (
+                int(scan),
+                int(h.stamp_ns),
+                h.flag.value,
+                int(h.observed),
+                f"{h.dead_reckoned_m:.3f}",
+                f"{h.blind_m:.3f}",
+                int(m.registered),
+                int(m.motion_model_only),
+                m.n_rows,
+                m.degenerate_axes,
+                _number(m.weakest_sigma_m),
+                _number(m.step_m),
+                _number(m.odometry_disagreement_m),
+                _number(m.prediction_offset_m),
+            )
+        )
+    write_text_atomic(path, buffer.getvalue())
+
+
+def _flag(text: str) -> HealthFlag:
+    try:
+        return HealthFlag(text)
+    except ValueError:
+        raise ValueError(f"flag {text!r} is not one of {', '.join(f.value for f in HealthFlag)}") from None
+
+
+def _boolean(text: str) -> bool:
+    if text not in ("0", "1"):
+        raise ValueError(f"{text!r} is not 0 or 1")
+    return text == "1"
+
+
+def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
+    measures = ScanMeasures(
+        registered=_boolean(row["registered"]),
+        motion_model_only=_boolean(row["motion_model_only"]),
+        n_rows=int(row["rows"]),
+        degenerate_axes=int(row["degenerate_axes"]),
+        weakest_sigma_m=float(row["weakest_sigma_m"]),
+        step_m=float(row["step_m"]),
+        odometry_disagreement_m=float(row["odometry_disagreement_m"]),
+        prediction_offset_m=float(row["prediction_offset_m"]),
+    )
+    health = ScanHealth(
+        stamp_ns=int(row["stamp_ns"]),
+        measures=measures,
+        observed=_boolean(row["observed"]),
+        dead_reckoned_m=float(row["dead_reckoned_m"]),
+        blind_m=float(row["blind_m"]),
+        flag=_flag(row["flag"]),
+    )
+    return int(row["scan"]), health
+
+
+def read_health_csv(path: str | Path) -> tuple[np.ndarray, tuple[ScanHealth, ...]]:
+    """The (N,) input scan numbers and the health of every row of a ``health.csv``.
+
+    Raises:
+        HealthFileError: the file is missing, its header is not :data:`HEALTH_COLUMNS`, or a row
+            is malformed (one line naming the file and the line).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise HealthFileError(f"{path}: cannot read the health table ({err.strerror or err})") from err
+    reader = csv.reader(io.StringIO(text))
+    header = next(reader, None)
+    if header is None or tuple(header) != HEALTH_COLUMNS:
+        raise HealthFileError(f"{path}: not a health table (the first line must be {','.join(HEALTH_COLUMNS)})")
+    scans: list[int] = []
+    health: list[ScanHealth] = []
+    for lineno, values in enumerate(reader, start=2):
+        if len(values) != len(HEALTH_COLUMNS):
+            raise HealthFileError(f"{path}:{lineno}: {len(values)} columns, expected {len(HEALTH_COLUMNS)}")
+        try:
+            scan, row = _row(dict(zip(HEALTH_COLUMNS, values)))
+        except ValueError as err:
+            raise HealthFileError(f"{path}:{lineno}: {err}") from None
+        scans.append(scan)
+        health.append(row)
+    return np.array(scans, dtype=np.int64), tuple(health)

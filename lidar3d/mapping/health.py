@@ -1,0 +1,265 @@
+"""The per-scan health signal: how well each scan observed its pose, and a flag ok / degraded / lost.
+
+Three kinds of measure, each cheap to take from what the tracker already knows about a scan
+(:func:`scan_measures` is the one place that reads a :class:`~lidar3d.mapping.tracker.TrackResult`):
+
+* **observability**: the standard deviation of the pose along the weakest direction of the scan's
+  information, ``sigma = residual_sigma / sqrt(lambda_min)`` (metres; for a rotation direction, the
+  shift of a point at the lever of the matched points), with ``lambda_min`` the smallest eigenvalue
+  of the registration's ``J^T W J`` and ``residual_sigma`` the residual standard deviation behind it
+  (``health.residual_sigma_m``, where the registration reports none). Unlike the eigenvalue itself,
+  which grows with every matched point, it is a length the estimate can be compared with;
+* **consistency**: how far apart two independent estimates of the same step are: the refined step
+  and the scan-to-scan odometry step (flagged), and the refined step and the motion model's
+  prediction (reported only: a constant-velocity prediction lags every turn entry by design). A
+  difference of pose ``T_a^-1 T_b`` counts as ``|dt| + lever_m * angle(dR)``, metres;
+* **hard failures**: the registration did not run (too few rows, empty submap) or the pose came
+  from the motion model alone.
+
+A scan *observes* its pose when it was registered, ``sigma <= observed_sigma_m`` and the odometry
+agrees within ``max_disagreement_m``; it observes *every direction* when, besides, its registration
+took no direction from the prior (``degenerate_axes == 0``: today's registration replaces a direction
+whose eigenvalue is below ``mapping.degeneracy_threshold`` by the motion model's, so that direction is
+dead-reckoned however small its sigma). :class:`HealthMonitor` keeps a small state, two distances
+travelled since the estimate was last fully observed: ``dead_reckoned_m`` over scans that did not
+observe every direction and ``blind_m`` over scans that did not observe their pose; each such scan
+adds its step length, ``degraded_after_m`` of fully observed travel in a row clears both. The flag
+is ``degraded`` from ``dead_reckoned_m >= degraded_after_m`` (dead-reckoned along some direction for
+a while) and ``lost`` from ``blind_m >= lost_after_m`` (not observed for long), so a single noisy
+scan never flags and a standstill (no travel) never accumulates.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from lidar3d.config import HealthConfig
+from lidar3d.mapping.se3 import exp_se3, invert
+from lidar3d.mapping.tracker import TrackResult
+from lidar3d.summary import HealthStretch, HealthSummary
+
+__all__ = [
+    "HealthFlag",
+    "HealthMonitor",
+    "PosedScan",
+    "ScanHealth",
+    "ScanMeasures",
+    "flag_stretches",
+    "scan_measures",
+    "summarize_health",
+]
+
+
+class HealthFlag(str, enum.Enum):
+    """How far a scan's pose can be trusted."""
+
+    OK = "ok"  # observed, or dead-reckoned over less than health.degraded_after_m
+    DEGRADED = "degraded"  # dead-reckoned along some direction for health.degraded_after_m or more
+    LOST = "lost"  # pose not observed for health.lost_after_m or more: it may be metres wrong
+
+
+@dataclass(frozen=True, slots=True)
+class ScanMeasures:
+    """What one scan tells about its own pose (see the module docstring).
+
+    Attributes:
+        registered: the scan-to-submap registration ran.
+        motion_model_only: too few features: the pose came from the motion model.
+        n_rows: residual rows of the registration (0 when it did not run).
+        degenerate_axes: directions the registration took from its prior (6 when it did not run).
+        weakest_sigma_m: pose standard deviation along the weakest direction of the scan's
+            information, metres (inf when the registration did not run).
+        step_m: length of the refined step from the previous scan, metres.
+        odometry_disagreement_m: refined step against the scan-to-scan odometry step, metres
+            (translation difference plus ``lever_m`` times the rotation difference in radians).
+        prediction_offset_m: refined step against the motion model's prediction, in the same units.
+    """
+
+    registered: bool
+    motion_model_only: bool
+    n_rows: int
+    degenerate_axes: int
+    weakest_sigma_m: float
+    step_m: float
+    odometry_disagreement_m: float
+    prediction_offset_m: float
+
+    def observes_pose(self, config: HealthConfig) -> bool:
+        """The scan observed its pose: registered, observable enough and consistent with the odometry."""
+        return (
+            self.registered
+            and not self.motion_model_only
+            and self.weakest_sigma_m <= config.observed_sigma_m
+            and self.odometry_disagreement_m <= config.max_disagreement_m
+        )
+
+    def observes_every_direction(self, config: HealthConfig) -> bool:
+        """The scan observed its pose and its registration took no direction from the prior."""
+        return self.observes_pose(config) and self.degenerate_axes == 0
+
+
+@dataclass(frozen=True, slots=True)
+class ScanHealth:
+    """The health of one scan: its measures, the state after it, and the flag.
+
+    Attributes:
+        stamp_ns: the scan's stamp.
+        measures: what the scan told about its pose.
+        observed: the scan observed every direction of its pose
+            (:meth:`ScanMeasures.observes_every_direction`).
+        dead_reckoned_m: travel over scans that did not observe every direction since the estimate
+            was last fully observed, including this scan's, metres.
+        blind_m: travel over scans that did not observe their pose (:meth:`ScanMeasures.observes_pose`)
+            in the same time, metres.
+        flag: ok, degraded or lost.
+    """
+
+    stamp_ns: int
+    measures: ScanMeasures
+    observed: bool
+    dead_reckoned_m: float
+    blind_m: float
+    flag: HealthFlag
+
+
+class PosedScan(Protocol):
+    """The previous scan as the pipeline knows it when the next one is tracked (a ``ScanEstimate``)."""
+
+    @property
+    def stamp_ns(self) -> int: ...
+
+    @property
+    def T_world_lidar(self) -> np.ndarray: ...
+
+    @property
+    def T_world_odom(self) -> np.ndarray: ...
+
+
+def _pose_difference_m(T_a: np.ndarray, T_b: np.ndarray, lever_m: float) -> float:
+    """``|dt| + lever_m * angle(dR)`` of the (4,4) poses ``T_a`` and ``T_b`` (same frame), metres."""
+    delta = invert(T_a) @ T_b
+    cos_angle = np.clip((np.trace(delta[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
+    return float(np.linalg.norm(delta[:3, 3]) + lever_m * np.arccos(cos_angle))
+
+
+def scan_measures(track: TrackResult, previous: PosedScan | None, config: HealthConfig) -> ScanMeasures:
+    """The health measures of the scan ``track`` concluded on.
+
+    This is the only reader of :class:`TrackResult` here: a field the registration adds (its
+    information matrix, a measured residual variance, the correction from its prior) enters here.
+
+    Args:
+        track: the tracker's result for the scan.
+        previous: the previous scan, with its poses as the tracker started from them (corrected by
+            any loop closure since); None for the first scan.
+        config: the ``[health]`` section (``residual_sigma_m``, ``lever_m``).
+    """
+    registration = track.registration
+    registered = registration is not None
+    if registration is None or not np.isfinite(registration.min_eigenvalue):
+        weakest_sigma_m = np.inf
+    else:
+        weakest_sigma_m = config.residual_sigma_m / np.sqrt(max(registration.min_eigenvalue, 1e-300))
+    if previous is None:
+        step_m = odometry_disagreement_m = prediction_offset_m = 0.0
+    else:
+        dt_s = (track.stamp_ns - previous.stamp_ns) * 1e-9
+        step = invert(previous.T_world_lidar) @ track.T_world_lidar
+        odometry_step = invert(previous.T_world_odom) @ track.T_world_odom
+        step_m = float(np.linalg.norm(step[:3, 3]))
+        odometry_disagreement_m = _pose_difference_m(step, odometry_step, config.lever_m)
+        prediction_offset_m = _pose_difference_m(step, exp_se3(track.deskew_twist * dt_s), config.lever_m)
+    return ScanMeasures(
+        registered=registered,
+        motion_model_only=track.motion_model_only,
+        n_rows=registration.n_rows if registration is not None else 0,
+        degenerate_axes=registration.degenerate_axes if registration is not None else 6,
+        weakest_sigma_m=float(weakest_sigma_m),
+        step_m=step_m,
+        odometry_disagreement_m=odometry_disagreement_m,
+        prediction_offset_m=prediction_offset_m,
+    )
+
+
+class HealthMonitor:
+    """Turns each scan's measures into its health; one verb, :meth:`assess`, per scan in order.
+
+    Args:
+        config: the ``[health]`` section.
+    """
+
+    def __init__(self, config: HealthConfig) -> None:
+        self._config = config
+        self._dead_reckoned_m = 0.0  # travel with some direction from the prior, since last fully observed
+        self._blind_m = 0.0  # travel with the pose not observed, in the same time
+        self._observed_m = 0.0  # fully observed travel in a row
+
+    def assess(self, stamp_ns: int, measures: ScanMeasures) -> ScanHealth:
+        """The health of the next scan (stamp ``stamp_ns``) from its measures."""
+        config = self._config
+        observed = measures.observes_every_direction(config)
+        if observed:
+            self._observed_m += measures.step_m
+            if self._observed_m >= config.degraded_after_m:
+                self._dead_reckoned_m = self._blind_m = 0.0
+        else:
+            self._observed_m = 0.0
+            self._dead_reckoned_m += measures.step_m
+            if not measures.observes_pose(config):
+                self._blind_m += measures.step_m
+        if self._blind_m >= config.lost_after_m:
+            flag = HealthFlag.LOST
+        elif self._dead_reckoned_m >= config.degraded_after_m:
+            flag = HealthFlag.DEGRADED
+        else:
+            flag = HealthFlag.OK
+        return ScanHealth(stamp_ns, measures, observed, self._dead_reckoned_m, self._blind_m, flag)
+
+
+def flag_stretches(flags: Sequence[HealthFlag], flag: HealthFlag) -> list[tuple[int, int]]:
+    """``(first, last)`` positions (inclusive) of every run of consecutive ``flag`` in ``flags``."""
+    is_flag = np.array([f is flag for f in flags], dtype=bool)
+    edges = np.diff(np.concatenate([[False], is_flag, [False]]).astype(np.int8))
+    starts = np.flatnonzero(edges == 1)
+    ends = np.flatnonzero(edges == -1) - 1
+    return [(int(a), int(b)) for a, b in zip(starts, ends)]
+
+
+def summarize_health(
+    health: Sequence[ScanHealth], scan_indices: Sequence[int] | np.ndarray, positions_m: np.ndarray
+) -> HealthSummary:
+    """The flags of a run counted, with its lost stretches measured along the trajectory.
+
+    Args:
+        health: the health of every scan of the trajectory, in order.
+        scan_indices: (N,) input scan number of each.
+        positions_m: (N,3) their positions in the final trajectory (after loop closures).
+    """
+    flags = [h.flag for h in health]
+    n = len(flags)
+    counts = {flag: sum(f is flag for f in flags) for flag in HealthFlag}
+    positions = np.asarray(positions_m, dtype=np.float64).reshape(-1, 3)
+    travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
+    stretches = tuple(
+        HealthStretch(
+            first_scan=int(scan_indices[first]),
+            last_scan=int(scan_indices[last]),
+            start_stamp_ns=int(health[first].stamp_ns),
+            end_stamp_ns=int(health[last].stamp_ns),
+            length_m=round(float(travelled[last] - travelled[max(first - 1, 0)]), 3),
+        )
+        for first, last in flag_stretches(flags, HealthFlag.LOST)
+    )
+    return HealthSummary(
+        ok_scans=counts[HealthFlag.OK],
+        degraded_scans=counts[HealthFlag.DEGRADED],
+        lost_scans=counts[HealthFlag.LOST],
+        ok_fraction=round(counts[HealthFlag.OK] / n, 4) if n else 1.0,
+        lost_m=round(float(sum(s.length_m for s in stretches)), 3),
+        lost_stretches=stretches,
+    )

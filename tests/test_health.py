@@ -1,0 +1,487 @@
+"""The per-scan health signal: the classifier on synthetic measures, its adapter from a TrackResult,
+``health.csv``, the summary and warning of a run, the batch column, and ``eval/health_check.py``."""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+import io
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_summary import example_summary
+
+from lidar3d.batch.report import bag_row, write_report
+from lidar3d.cli.main import main
+from lidar3d.config import Config, HealthConfig, config_with
+from lidar3d.errors import ConfigError, SummaryError
+from lidar3d.io.health_csv import HEALTH_COLUMNS, HealthFileError, read_health_csv, write_health_csv
+from lidar3d.io.run_folder import RunFolderState, check_run_folder, publish_set
+from lidar3d.io.trajectory_io import write_tum
+from lidar3d.mapping.health import (
+    HealthFlag,
+    HealthMonitor,
+    ScanHealth,
+    ScanMeasures,
+    flag_stretches,
+    scan_measures,
+    summarize_health,
+)
+from lidar3d.mapping.registration import SolveResult
+from lidar3d.mapping.se3 import pose_from_xyz_rpy
+from lidar3d.mapping.tracker import TrackResult
+from lidar3d.records import Trajectory
+from lidar3d.run_statistics import RunStatistics
+from lidar3d.summary import HealthStretch, HealthSummary, RunSummary
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "eval"))
+from health_check import check_health, local_drift_errors  # noqa: E402
+from health_check import main as health_check_main  # noqa: E402
+
+CONFIG = HealthConfig()
+S = 10**9
+
+
+def measures(step_m: float = 0.5, *, sigma_m: float = 0.002, registered: bool = True, **changes) -> ScanMeasures:
+    """A scan moving ``step_m`` whose registration left ``sigma_m`` along its weakest direction."""
+    base = ScanMeasures(
+        registered=registered,
+        motion_model_only=False,
+        n_rows=1500 if registered else 0,
+        degenerate_axes=0 if registered else 6,
+        weakest_sigma_m=sigma_m if registered else np.inf,
+        step_m=step_m,
+        odometry_disagreement_m=0.02,
+        prediction_offset_m=0.02,
+    )
+    return dataclasses.replace(base, **changes)
+
+
+def assess_all(sequence: list[ScanMeasures], config: HealthConfig = CONFIG) -> list[ScanHealth]:
+    monitor = HealthMonitor(config)
+    return [monitor.assess(i * S // 10, m) for i, m in enumerate(sequence)]
+
+
+def flags(health: list[ScanHealth]) -> str:
+    return "".join(h.flag.value[0] for h in health)  # o, d, l
+
+
+# -- the classifier -------------------------------------------------------------------------------------
+
+
+def test_unobserved_travel_flags_degraded_then_lost_at_the_documented_distances():
+    # 0.5 m per scan: 2 m (degraded_after_m) after 4 unobserved scans, 10 m (lost_after_m) after 20.
+    blind = measures(sigma_m=10 * CONFIG.observed_sigma_m)
+    health = assess_all([measures()] * 5 + [blind] * 24)
+    assert flags(health) == "o" * 5 + "ooo" + "d" * 16 + "l" * 5
+    assert [h.dead_reckoned_m for h in health[5:9]] == [h.blind_m for h in health[5:9]] == [0.5, 1.0, 1.5, 2.0]
+    assert not any(h.observed for h in health[5:]) and all(h.observed for h in health[:5])
+
+
+def test_a_direction_taken_from_the_prior_degrades_but_never_loses_the_pose():
+    # Well observed but for one direction the registration took from the motion model.
+    one_from_prior = measures(degenerate_axes=1)
+    assert one_from_prior.observes_pose(CONFIG) and not one_from_prior.observes_every_direction(CONFIG)
+    health = assess_all([measures()] * 5 + [one_from_prior] * 100 + [measures()] * 4)
+    assert flags(health) == "o" * 5 + "ooo" + "d" * 97 + "ddd" + "o"
+    assert health[104].dead_reckoned_m == 50.0 and health[104].blind_m == 0.0
+    # Blind scans among them are counted apart: lost after 10 m of those alone.
+    mixed = assess_all(([one_from_prior] * 3 + [measures(sigma_m=1.0)]) * 25)
+    assert mixed[-1].blind_m == 12.5 and mixed[-1].flag is HealthFlag.LOST
+    assert [h.flag for h in mixed].index(HealthFlag.LOST) == 79  # the 20th blind scan
+
+
+def test_a_single_bad_scan_or_a_short_blind_patch_does_not_flag():
+    bad_kinds = [
+        measures(sigma_m=1.0),
+        measures(registered=False),
+        measures(motion_model_only=True),
+        measures(odometry_disagreement_m=10 * CONFIG.max_disagreement_m),
+    ]
+    for bad in bad_kinds:
+        health = assess_all([measures()] * 10 + [bad] + [measures()] * 10)
+        assert flags(health) == "o" * 21, bad
+        assert not health[10].observed
+    # Three blind scans at 0.5 m: 1.5 m, below degraded_after_m.
+    assert set(flags(assess_all([measures()] * 3 + [measures(sigma_m=1.0)] * 3 + [measures()] * 3))) == {"o"}
+
+
+def test_observed_travel_clears_the_state_only_after_the_documented_distance():
+    blind, seen = measures(sigma_m=1.0), measures()
+    health = assess_all([blind] * 30 + [seen] * 3 + [blind] + [seen] * 4)
+    # Lost after 20 blind scans; 1.5 m of observed travel is not enough, the blind scan restarts
+    # the count; 4 x 0.5 m = 2 m of observed travel clears it on the last scan.
+    assert flags(health) == "ooo" + "d" * 16 + "l" * 11 + "lll" + "l" + "lll" + "o"
+    assert health[-1].dead_reckoned_m == 0.0
+
+
+def test_a_standstill_without_registration_never_flags():
+    assert set(flags(assess_all([measures(step_m=0.0, registered=False)] * 200))) == {"o"}
+
+
+def test_thresholds_come_from_the_config():
+    blind = measures(step_m=1.0, sigma_m=0.05)
+    strict = HealthConfig(observed_sigma_m=0.1, degraded_after_m=1.0, lost_after_m=3.0)
+    assert flags(assess_all([blind] * 4)) == "oddd"  # default: 2 m, 10 m
+    assert flags(assess_all([blind] * 4, strict)) == "oooo"  # 0.05 m is observed under 0.1 m
+    assert flags(assess_all([measures(step_m=1.0, sigma_m=0.5)] * 4, strict)) == "ddll"
+
+
+def test_lost_after_must_not_be_below_degraded_after():
+    with pytest.raises(ConfigError, match=r"^config health\.lost_after_m: 1\.0 is below health\.degraded_after_m"):
+        config_with(Config(), {"health": {"lost_after_m": 1.0}})
+
+
+# -- the adapter from the tracker ---------------------------------------------------------------------
+
+
+@dataclasses.dataclass(frozen=True)
+class _Posed:
+    stamp_ns: int
+    T_world_lidar: np.ndarray
+    T_world_odom: np.ndarray
+
+
+def _track(T_world_lidar, T_world_odom, registration, *, twist=None, stamp_ns=S // 10) -> TrackResult:
+    return TrackResult(
+        stamp_ns=stamp_ns,
+        T_world_lidar=T_world_lidar,
+        T_world_odom=T_world_odom,
+        motion_model_only=False,
+        registration=registration,
+        yaw_held=False,
+        deskew_twist=np.zeros(6) if twist is None else twist,
+        settled=None,
+        timings_ms={},
+    )
+
+
+def test_measures_of_a_tracked_scan():
+    previous = _Posed(0, np.eye(4), np.eye(4))
+    refined = pose_from_xyz_rpy(np.array([1.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    odometry = pose_from_xyz_rpy(np.array([1.1, 0.0, 0.0, 0.0, 0.0, np.radians(0.5)]))  # 0.1 m and 0.5 deg off
+    registration = SolveResult(refined, 5, True, 1234, 1, 100.0)
+    twist = np.array([9.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 0.9 m in 0.1 s: 0.1 m short
+    m = scan_measures(_track(refined, odometry, registration, twist=twist), previous, CONFIG)
+    assert m.registered and m.n_rows == 1234 and m.degenerate_axes == 1
+    assert m.weakest_sigma_m == pytest.approx(CONFIG.residual_sigma_m / 10.0)
+    assert m.step_m == pytest.approx(1.0)
+    assert m.odometry_disagreement_m == pytest.approx(0.1 + CONFIG.lever_m * np.radians(0.5))
+    assert m.prediction_offset_m == pytest.approx(0.1)
+    assert m.observes_pose(CONFIG)
+    assert not m.observes_pose(dataclasses.replace(CONFIG, observed_sigma_m=0.004))
+    assert not m.observes_pose(dataclasses.replace(CONFIG, max_disagreement_m=0.15))
+
+
+def test_measures_without_registration_or_previous_scan():
+    m = scan_measures(_track(np.eye(4), np.eye(4), None), None, CONFIG)
+    assert not m.registered and m.weakest_sigma_m == np.inf and m.degenerate_axes == 6 and m.n_rows == 0
+    assert m.step_m == m.odometry_disagreement_m == m.prediction_offset_m == 0.0
+    assert not m.observes_pose(CONFIG)
+
+
+# -- stretches and summary ------------------------------------------------------------------------------
+
+
+def _health_with(flag_text: str) -> list[ScanHealth]:
+    by_letter = {f.value[0]: f for f in HealthFlag}
+    return [ScanHealth(i * S, measures(), True, 0.0, 0.0, by_letter[c]) for i, c in enumerate(flag_text)]
+
+
+def test_stretches_and_summary_measure_the_lost_scans_on_the_trajectory():
+    assert flag_stretches([], HealthFlag.LOST) == []
+    health = _health_with("oollldoll")
+    assert flag_stretches([h.flag for h in health], HealthFlag.LOST) == [(2, 4), (7, 8)]
+    positions = np.cumsum(np.full((9, 3), [1.0, 0.0, 0.0]), axis=0)  # 1 m per scan
+    summary = summarize_health(health, np.arange(9) + 100, positions)
+    assert (summary.ok_scans, summary.degraded_scans, summary.lost_scans, summary.scans) == (3, 1, 5, 9)
+    assert summary.ok_fraction == pytest.approx(0.3333)
+    first, second = summary.lost_stretches
+    assert (first.first_scan, first.last_scan, first.start_stamp_ns, first.end_stamp_ns) == (102, 104, 2 * S, 4 * S)
+    assert first.length_m == 3.0 and second.length_m == 2.0 and summary.lost_m == 5.0
+    assert summarize_health([], [], np.zeros((0, 3))) == HealthSummary(0, 0, 0, 1.0, 0.0, ())
+
+
+def _lost_summary(n_stretches: int) -> HealthSummary:
+    stretches = tuple(HealthStretch(10 * i, 10 * i + 4, i * S, i * S + 4, 12.5) for i in range(n_stretches))
+    return HealthSummary(50, 0, 5 * n_stretches, 0.5, 12.5 * n_stretches, stretches)
+
+
+def test_a_run_with_lost_stretches_ends_with_one_warning_line():
+    stats = RunStatistics()
+    assert stats.warnings(10) == () and stats.warnings(10, _lost_summary(0)) == ()
+    (line,) = stats.warnings(10, _lost_summary(1))
+    assert line == (
+        "health: lost on 1 stretch (12.5 m, 9 % of the scans): scans 0-4 (12.5 m); "
+        "poses there may be metres wrong, see health.csv"
+    )
+    (line,) = stats.warnings(10, _lost_summary(7))
+    assert line.startswith("health: lost on 7 stretches (87.5 m, 41 % of the scans): scans 0-4 (12.5 m), 10-14")
+    assert "40-44 (12.5 m), and 2 more; poses there" in line and "\n" not in line
+
+
+def test_summary_json_round_trip_keeps_the_health():
+    summary = example_summary(health=_lost_summary(2))
+    text = summary.to_json()
+    assert RunSummary.from_json(text) == summary and RunSummary.from_json(text).to_json() == text
+    data = json.loads(text)
+    assert list(data["health"]) == [
+        "ok_scans",
+        "degraded_scans",
+        "lost_scans",
+        "ok_fraction",
+        "lost_m",
+        "lost_stretches",
+    ]
+    assert data["health"]["lost_stretches"][1] == {
+        "first_scan": 10,
+        "last_scan": 14,
+        "start_stamp_ns": S,
+        "end_stamp_ns": S + 4,
+        "length_m": 12.5,
+    }
+    data["health"]["lost_stretches"][0]["length_m"] = "far"
+    with pytest.raises(SummaryError, match=r"^s\.json: 'health\.lost_stretches\[0\]\.length_m' must be a number"):
+        RunSummary.from_json(json.dumps(data), source="s.json")
+
+
+# -- health.csv -----------------------------------------------------------------------------------------
+
+
+def test_health_csv_round_trip(tmp_path):
+    blind = measures(sigma_m=1.0)
+    health = assess_all([measures(registered=False, step_m=0.0)] + [measures()] * 3 + [blind] * 30)
+    path = tmp_path / "health.csv"
+    write_health_csv(path, np.arange(34) + 7, health)
+    lines = path.read_text().splitlines()
+    assert lines[0] == ",".join(HEALTH_COLUMNS) and len(lines) == 35
+    assert lines[1].startswith("7,0,ok,0,0.000,0.000,0,0,0,6,inf,")
+    scans, back = read_health_csv(path)
+    assert list(scans) == list(range(7, 41)) and [h.flag for h in back] == [h.flag for h in health]
+    assert [h.measures for h in back] == [h.measures for h in health]  # these values print exactly in 6 digits
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("a,b\n", r"not a health table"),
+        (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", r"health\.csv:2: 3 columns, expected 14"),
+        (
+            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0\n",
+            r"health\.csv:2: flag 'fine' is not one of",
+        ),
+        (",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0\n", r"health\.csv:2: 'yes' is not 0 or 1"),
+    ],
+)
+def test_a_malformed_health_csv_names_the_file_and_line(tmp_path, text, message):
+    path = tmp_path / "health.csv"
+    path.write_text(text)
+    with pytest.raises(HealthFileError, match=message):
+        read_health_csv(path)
+    with pytest.raises(HealthFileError, match=r"missing\.csv: cannot read the health table"):
+        read_health_csv(tmp_path / "missing.csv")
+
+
+# -- a run end to end ----------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory):
+    sim = pytest.importorskip("lidar3d.sim")
+    return sim.simulate("loop", tmp_path_factory.mktemp("sim") / "loop", seed=0, duration_s=2.5)
+
+
+def _check_folder_health(out: Path) -> RunSummary:
+    check = check_run_folder(out)
+    assert check.state is RunFolderState.CONSISTENT, check.problems
+    summary = check.summary
+    assert summary is not None and summary.health is not None
+    counted, entry = summary.health, summary.output("health.csv")
+    scans, health = read_health_csv(out / "health.csv")
+    assert entry is not None and entry.rows == summary.scans == len(health)
+    counts = {flag: sum(row.flag is flag for row in health) for flag in HealthFlag}
+    assert (counted.ok_scans, counted.degraded_scans, counted.lost_scans) == tuple(counts[f] for f in HealthFlag)
+    assert counted.lost_scans == sum(s.last_scan - s.first_scan + 1 for s in counted.lost_stretches)
+    assert list(scans) == list(range(len(health)))
+    return summary
+
+
+@pytest.fixture(scope="module")
+def default_run(simulated, tmp_path_factory):
+    """``lidar3d run`` with the default health settings: its folder and what it printed."""
+    out = tmp_path_factory.mktemp("run") / "out"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["-q", "run", str(simulated.bag), "--out", str(out), "--no-loop"]) == 0
+    return out, printed.getvalue()
+
+
+def test_a_run_writes_health_csv_consistent_with_its_summary(default_run):
+    out, printed = default_run
+    summary = _check_folder_health(out)
+    assert summary.health.ok_fraction == 1.0 and summary.health.lost_stretches == ()
+    assert not any(w.startswith("health:") for w in summary.warnings)
+    assert "health: 100 % of the scans ok, 0 degraded, 0 lost" in printed and "warning: health" not in printed
+
+
+def test_a_run_with_lost_stretches_exits_0_and_says_so(simulated, tmp_path, capsys):
+    # Nothing counts as observed and a few centimetres of travel make a scan lost.
+    config = tmp_path / "strict.toml"
+    config.write_text("[health]\nobserved_sigma_m = 1e-9\ndegraded_after_m = 0.01\nlost_after_m = 0.02\n")
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(simulated.bag), "--out", str(out), "--no-loop", "--config", str(config)]) == 0
+    summary = _check_folder_health(out)
+    (stretch,) = summary.health.lost_stretches
+    assert stretch.last_scan == summary.scans - 1 and stretch.length_m > 5.0
+    warnings = [w for w in summary.warnings if w.startswith("health:")]
+    assert len(warnings) == 1 and f"scans {stretch.first_scan}-{stretch.last_scan}" in warnings[0]
+    printed = capsys.readouterr().out
+    assert printed.count("warning: health: lost on 1 stretch") == 1
+    # The batch report shows it in its health column.
+    row = bag_row(name="sim", bag=simulated.bag, status="done", batch_dir=tmp_path, summary=summary)
+    assert row["health"] == "lost" and row["lost_m"] == summary.health.lost_m
+    page = write_report(tmp_path, [row], {"out_dir": str(tmp_path)}).html.read_text()
+    assert f"lost {summary.health.lost_m:.1f} m: ok" in page and 'class="health-lost"' in page
+
+
+def test_the_batch_report_has_a_health_column(tmp_path):
+    healthy = example_summary(health=HealthSummary(80, 0, 0, 1.0, 0.0))
+    degraded = example_summary(health=HealthSummary(74, 6, 0, 0.925, 0.0))
+    rows = [
+        bag_row(name=name, bag=Path(f"/b/{name}.bag"), status="done", batch_dir=tmp_path, summary=summary)
+        for name, summary in (("a", healthy), ("b", degraded), ("c", example_summary(health=None)))
+    ]
+    assert [(r["health"], r["health_ok_percent"], r["lost_m"]) for r in rows] == [
+        ("ok", 100.0, 0.0),
+        ("degraded", 92.5, 0.0),
+        (None, None, None),
+    ]
+    paths = write_report(tmp_path, rows, {"out_dir": str(tmp_path)})
+    page = paths.html.read_text()
+    assert '<button type="button">health</button>' in page
+    assert 'data-value="100.0">ok 100 %</td>' in page and "degraded: ok 92 %" in page
+    assert paths.csv.read_text().splitlines()[2].count(",degraded,92.5,0.0,") == 1
+
+
+# -- eval/health_check.py ------------------------------------------------------------------------------
+
+
+def test_local_drift_is_the_error_of_the_segment_ending_at_each_scan():
+    truth = np.tile(np.eye(4), (40, 1, 1))
+    truth[:, 0, 3] = np.arange(40.0)  # 1 m per scan along x
+    estimate = truth.copy()
+    estimate[20:, 0, 3] = 19.0 + 1.05 * (np.arange(20, 40) - 19.0)  # 5 % too long from scan 20 on
+    estimate[:, :3, 3] += [5.0, -3.0, 1.0]  # another world frame: aligned away per segment
+    errors = local_drift_errors(estimate, truth, 10.0)
+    assert np.isnan(errors[:10]).all() and errors[10:20] == pytest.approx(0.0, abs=1e-12)
+    assert errors[25] == pytest.approx(0.3) and errors[29:] == pytest.approx(0.5)
+
+
+def _synthetic_run(folder: Path, truth: Trajectory, estimate: Trajectory, health: list[ScanHealth]) -> None:
+    n = len(health)
+
+    def write(staging: Path) -> None:
+        write_tum(staging / "trajectory_tum.txt", estimate)
+        write_health_csv(staging / "health.csv", range(n), health)
+
+    summary = example_summary(scans=n, keyframes=0, map_points=0, loop_candidates=0)
+    publish_set(folder, summary, write, rows={"trajectory_tum.txt": n, "health.csv": n})
+
+
+def test_health_check_scores_recall_and_false_flags(tmp_path, capsys):
+    stamps = np.arange(40, dtype=np.int64) * S // 10 + 1_700_000_000 * S
+    truth_poses = np.tile(np.eye(4), (40, 1, 1))
+    truth_poses[:, 0, 3] = np.arange(40.0)
+    estimate_poses = truth_poses.copy()
+    estimate_poses[20:, 0, 3] = 19.0 + 1.04 * (np.arange(20, 40) - 19.0)  # bad from scan 27 (0.32 m)
+    truth, estimate = Trajectory(stamps, truth_poses), Trajectory(stamps, estimate_poses)
+    # Flagged from scan 18 (two good scans flagged early) to 37 (two bad scans missed at the end).
+    health = [dataclasses.replace(h, stamp_ns=int(t)) for h, t in zip(_health_with("o" * 18 + "d" * 20 + "oo"), stamps)]
+    _synthetic_run(tmp_path / "run", truth, estimate, health)
+    write_tum(tmp_path / "truth.txt", truth)
+    report = check_health(tmp_path / "run", tmp_path / "truth.txt")
+    assert (report["scans"], report["scored"], report["bad"], report["good"]) == (40, 30, 13, 17)
+    assert report["recall"] == pytest.approx(11 / 13, abs=1e-4) and report["bad_flagged"] == 11
+    assert report["false_flag_rate"] == pytest.approx(9 / 17, abs=1e-4) and report["good_flagged"] == 9
+    assert not report["recall_met"] and not report["false_flag_met"]
+    assert report["flags"] == {"ok": 20, "degraded": 20, "lost": 0}
+    assert (
+        health_check_main([str(tmp_path / "run"), str(tmp_path / "truth.txt"), "--json", str(tmp_path / "h.json")]) == 2
+    )
+    printed = capsys.readouterr().out
+    assert "recall 84.6 % (11 of 13 flagged; target >= 90 %: NOT met)" in printed
+    assert json.loads((tmp_path / "h.json").read_text())["bad"] == 13
+    assert health_check_main([str(tmp_path / "missing"), str(tmp_path / "truth.txt")]) == 1
+    assert "error:" in capsys.readouterr().err
+
+
+def test_health_check_on_a_simulated_run_meets_the_targets(simulated, default_run):
+    out, _ = default_run
+    report = check_health(out, simulated.ground_truth.parent, segment_m=5.0)
+    assert report["scored"] > 0 and report["bad"] == 0 and report["false_flag_rate"] == 0.0
+    assert report["recall"] is None and report["recall_met"] and report["false_flag_met"]
+
+
+def test_the_batch_line_of_a_bag_with_lost_stretches_says_so():
+    from lidar3d.batch import JobResult, JobStatus
+    from lidar3d.batch.progress import BatchProgress, ProgressDisplay
+
+    progress = BatchProgress({"a": 100})
+    progress.started("a")
+    progress.finished_job(JobResult("a", JobStatus.DONE, summary=example_summary(scans=55, health=_lost_summary(1))))
+    stream = io.StringIO()
+    display = ProgressDisplay(progress, stream)
+    display.finished(progress.results["a"])
+    display.close()
+    assert "a: 55 scans, " in stream.getvalue() and "; health: lost over 12.5 m" in stream.getvalue()
+
+
+def test_the_suite_tables_hold_the_health_check():
+    from suite_report import render_markdown
+
+    header = {
+        "command": "eval/run_suite.py",
+        "date_utc": "2026-12-01 23:00 UTC",
+        "elapsed_min": 1.0,
+        "cpu": "cpu",
+        "n_cpus": 2,
+        "memory_gib": 4.0,
+        "load_start": "0.1",
+        "load_end": "0.1",
+        "lidar3d_version": "0",
+        "commit": "`abc`",
+        "python": "3.11",
+        "peer_versions": {},
+        "seeds": [0],
+        "durations_text": "full length",
+        "jobs": 1,
+        "peer_fractions": {},
+        "quick_command": "q",
+        "skipped": [],
+    }
+    row = {
+        "scenario": "blind_turn",
+        "seed": 0,
+        "method": "lidar3d",
+        "status": "ok",
+        "case": {"path_length_m": 422.0, "n_scans": 700, "revisit_events": 0},
+        "run": {"scans": 700, "wall_s": 150.0, "scans_per_s": 4.6, "health": {"lost_m": 199.6}},
+        "scores": {},
+        "peak_rss_mib": 500.0,
+        "health": {
+            "flags": {"ok": 328, "degraded": 14, "lost": 358},
+            "bad": 364,
+            "scored": 672,
+            "recall": 1.0,
+            "false_flag_rate": 0.0262,
+        },
+    }
+    markdown = render_markdown([row], header)
+    assert "## lidar3d health signal against ground truth" in markdown
+    assert "| blind_turn | 328 / 14 / 358 | 199.6 | 364 of 672 | 100.0 % | 2.6 % |" in markdown
+    no_check = render_markdown([{**row, "health": None}], header)
+    assert "health signal" not in no_check
