@@ -30,7 +30,7 @@ from lidar3d.mapping.health import (
     scan_measures,
     summarize_health,
 )
-from lidar3d.mapping.registration import SolveResult
+from lidar3d.mapping.registration import PosePrior, SolveResult
 from lidar3d.mapping.se3 import pose_from_xyz_rpy
 from lidar3d.mapping.tracker import TrackResult
 from lidar3d.records import Trajectory
@@ -52,7 +52,7 @@ def measures(step_m: float = 0.5, *, sigma_m: float = 0.002, registered: bool = 
         registered=registered,
         motion_model_only=False,
         n_rows=1500 if registered else 0,
-        degenerate_axes=0 if registered else 6,
+        prior_axes=0 if registered else 6,
         weakest_sigma_m=sigma_m if registered else np.inf,
         step_m=step_m,
         odometry_disagreement_m=0.02,
@@ -84,7 +84,7 @@ def test_unobserved_travel_flags_degraded_then_lost_at_the_documented_distances(
 
 def test_a_direction_taken_from_the_prior_degrades_but_never_loses_the_pose():
     # Well observed but for one direction the registration took from the motion model.
-    one_from_prior = measures(degenerate_axes=1)
+    one_from_prior = measures(prior_axes=1)
     assert one_from_prior.observes_pose(CONFIG) and not one_from_prior.observes_every_direction(CONFIG)
     health = assess_all([measures()] * 5 + [one_from_prior] * 100 + [measures()] * 4)
     assert flags(health) == "o" * 5 + "ooo" + "d" * 97 + "ddd" + "o"
@@ -146,14 +146,15 @@ class _Posed:
     T_world_odom: np.ndarray
 
 
-def _track(T_world_lidar, T_world_odom, registration, *, twist=None, stamp_ns=S // 10) -> TrackResult:
+def _track(T_world_lidar, T_world_odom, registration, *, twist=None, stamp_ns=S // 10, prior=None) -> TrackResult:
     return TrackResult(
         stamp_ns=stamp_ns,
         T_world_lidar=T_world_lidar,
         T_world_odom=T_world_odom,
         motion_model_only=False,
         registration=registration,
-        yaw_held=False,
+        prior=prior,
+        heading_observed=True,
         deskew_twist=np.zeros(6) if twist is None else twist,
         settled=None,
         timings_ms={},
@@ -167,7 +168,7 @@ def test_measures_of_a_tracked_scan():
     registration = SolveResult(refined, 5, True, 1234, 1, 100.0)
     twist = np.array([9.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 0.9 m in 0.1 s: 0.1 m short
     m = scan_measures(_track(refined, odometry, registration, twist=twist), previous, CONFIG)
-    assert m.registered and m.n_rows == 1234 and m.degenerate_axes == 1
+    assert m.registered and m.n_rows == 1234 and m.prior_axes == 1
     assert m.weakest_sigma_m == pytest.approx(CONFIG.residual_sigma_m / 10.0)
     assert m.step_m == pytest.approx(1.0)
     assert m.odometry_disagreement_m == pytest.approx(0.1 + CONFIG.lever_m * np.radians(0.5))
@@ -177,9 +178,21 @@ def test_measures_of_a_tracked_scan():
     assert not m.observes_pose(dataclasses.replace(CONFIG, max_disagreement_m=0.15))
 
 
+def test_prior_axes_count_the_axes_the_motion_prior_decided():
+    """With a prior, an axis counts when the scan removed less than half of the prior's variance
+    there: here the scan says nothing about x and little about yaw, and much about the rest."""
+    refined = np.eye(4)
+    prior = PosePrior(np.eye(4), np.diag([1e4, 1e4, 1e4, 1e6, 1e6, 1e6]))
+    information = np.diag([0.0, 1e6, 1e6, 1e8, 1e8, 0.5e6])
+    registration = SolveResult(refined, 5, True, 1234, 0, 500.0, information, 0.02)
+    m = scan_measures(_track(refined, refined, registration, prior=prior), None, CONFIG)
+    assert m.prior_axes == 2
+    assert m.weakest_sigma_m == pytest.approx(0.02 / np.sqrt(500.0))  # the measured residual sigma
+
+
 def test_measures_without_registration_or_previous_scan():
     m = scan_measures(_track(np.eye(4), np.eye(4), None), None, CONFIG)
-    assert not m.registered and m.weakest_sigma_m == np.inf and m.degenerate_axes == 6 and m.n_rows == 0
+    assert not m.registered and m.weakest_sigma_m == np.inf and m.prior_axes == 6 and m.n_rows == 0
     assert m.step_m == m.odometry_disagreement_m == m.prediction_offset_m == 0.0
     assert not m.observes_pose(CONFIG)
 

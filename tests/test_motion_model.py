@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from lidar3d.mapping.motion_model import MotionModel
 from lidar3d.config import MotionConfig
+from lidar3d.mapping.motion_model import MotionModel
 from lidar3d.mapping.registration import PlaneMap, PosePrior, observed_share, solve_pose
 from lidar3d.mapping.se3 import pose_from_xyz_rpy, xyz_rpy_from_pose
 

@@ -4,7 +4,7 @@ Columns (:data:`HEALTH_COLUMNS`): ``scan`` (input scan number), ``stamp_ns``, ``
 degraded / lost), ``observed`` (0/1: the scan observed every direction of its pose),
 ``dead_reckoned_m`` and ``blind_m`` (travel with some direction dead-reckoned, and with the pose not
 observed, since the pose was last fully observed), then the scan's measures: ``registered``,
-``motion_model_only`` (0/1), ``rows``, ``degenerate_axes``, ``weakest_sigma_m`` (``inf`` when the
+``motion_model_only`` (0/1), ``rows``, ``prior_axes``, ``weakest_sigma_m`` (``inf`` when the
 registration did not run), ``step_m``, ``odometry_disagreement_m``, ``prediction_offset_m``. See
 :mod:`lidar3d.mapping.health` for what each means.
 """
@@ -34,7 +34,7 @@ HEALTH_COLUMNS = (
     "registered",
     "motion_model_only",
     "rows",
-    "degenerate_axes",
+    "prior_axes",
     "weakest_sigma_m",
     "step_m",
     "odometry_disagreement_m",
@@ -68,7 +68,7 @@ def write_health_csv(path: str | Path, scan_indices: Sequence[int] | np.ndarray,
                 int(m.registered),
                 int(m.motion_model_only),
                 m.n_rows,
-                m.degenerate_axes,
+                m.prior_axes,
                 _number(m.weakest_sigma_m),
                 _number(m.step_m),
                 _number(m.odometry_disagreement_m),
@@ -96,7 +96,7 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         registered=_boolean(row["registered"]),
         motion_model_only=_boolean(row["motion_model_only"]),
         n_rows=int(row["rows"]),
-        degenerate_axes=int(row["degenerate_axes"]),
+        prior_axes=int(row["prior_axes"]),
         weakest_sigma_m=float(row["weakest_sigma_m"]),
         step_m=float(row["step_m"]),
         odometry_disagreement_m=float(row["odometry_disagreement_m"]),

@@ -6,8 +6,8 @@ Three kinds of measure, each cheap to take from what the tracker already knows a
 * **observability**: the standard deviation of the pose along the weakest direction of the scan's
   information, ``sigma = residual_sigma / sqrt(lambda_min)`` (metres; for a rotation direction, the
   shift of a point at the lever of the matched points), with ``lambda_min`` the smallest eigenvalue
-  of the registration's ``J^T W J`` and ``residual_sigma`` the residual standard deviation behind it
-  (``health.residual_sigma_m``, where the registration reports none). Unlike the eigenvalue itself,
+  of the registration's ``J^T W J`` and ``residual_sigma`` the weighted residual standard deviation
+  the registration measured (``health.residual_sigma_m`` where it reports none). Unlike the eigenvalue itself,
   which grows with every matched point, it is a length the estimate can be compared with;
 * **consistency**: how far apart two independent estimates of the same step are: the refined step
   and the scan-to-scan odometry step (flagged), and the refined step and the motion model's
@@ -18,9 +18,9 @@ Three kinds of measure, each cheap to take from what the tracker already knows a
 
 A scan *observes* its pose when it was registered, ``sigma <= observed_sigma_m`` and the odometry
 agrees within ``max_disagreement_m``; it observes *every direction* when, besides, its registration
-took no direction from the prior (``degenerate_axes == 0``: today's registration replaces a direction
-whose eigenvalue is below ``mapping.degeneracy_threshold`` by the motion model's, so that direction is
-dead-reckoned however small its sigma). :class:`HealthMonitor` keeps a small state, two distances
+took no direction from the prior (``prior_axes == 0``: on no axis did the motion prior decide more
+than the scan, i.e. the scan removed at least half of the prior's variance on every axis; that
+direction is dead-reckoned however small its sigma). :class:`HealthMonitor` keeps a small state, two distances
 travelled since the estimate was last fully observed: ``dead_reckoned_m`` over scans that did not
 observe every direction and ``blind_m`` over scans that did not observe their pose; each such scan
 adds its step length, ``degraded_after_m`` of fully observed travel in a row clears both. The flag
@@ -39,6 +39,7 @@ from typing import Protocol
 import numpy as np
 
 from lidar3d.config import HealthConfig
+from lidar3d.mapping.registration import observed_share
 from lidar3d.mapping.se3 import exp_se3, invert
 from lidar3d.mapping.tracker import TrackResult
 from lidar3d.summary import HealthStretch, HealthSummary
@@ -71,7 +72,7 @@ class ScanMeasures:
         registered: the scan-to-submap registration ran.
         motion_model_only: too few features: the pose came from the motion model.
         n_rows: residual rows of the registration (0 when it did not run).
-        degenerate_axes: directions the registration took from its prior (6 when it did not run).
+        prior_axes: axes the motion prior decided more than the scan (6 when the registration did not run).
         weakest_sigma_m: pose standard deviation along the weakest direction of the scan's
             information, metres (inf when the registration did not run).
         step_m: length of the refined step from the previous scan, metres.
@@ -83,7 +84,7 @@ class ScanMeasures:
     registered: bool
     motion_model_only: bool
     n_rows: int
-    degenerate_axes: int
+    prior_axes: int
     weakest_sigma_m: float
     step_m: float
     odometry_disagreement_m: float
@@ -100,7 +101,7 @@ class ScanMeasures:
 
     def observes_every_direction(self, config: HealthConfig) -> bool:
         """The scan observed its pose and its registration took no direction from the prior."""
-        return self.observes_pose(config) and self.degenerate_axes == 0
+        return self.observes_pose(config) and self.prior_axes == 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +148,18 @@ def _pose_difference_m(T_a: np.ndarray, T_b: np.ndarray, lever_m: float) -> floa
     return float(np.linalg.norm(delta[:3, 3]) + lever_m * np.arccos(cos_angle))
 
 
+def _prior_axes(track: TrackResult) -> int:
+    """Axes of ``[tx, ty, tz, roll, pitch, yaw]`` the motion prior decided more than the scan (the
+    scan removed less than half of the prior's variance there); without a prior, the directions
+    LOAM's eigenvalue test left degenerate (kept at the guess); 6 when the registration did not run."""
+    registration = track.registration
+    if registration is None:
+        return 6
+    if track.prior is None:
+        return registration.degenerate_axes
+    return int(np.count_nonzero(observed_share(registration.information, track.prior.information) < 0.5))
+
+
 def scan_measures(track: TrackResult, previous: PosedScan | None, config: HealthConfig) -> ScanMeasures:
     """The health measures of the scan ``track`` concluded on.
 
@@ -164,7 +177,10 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
     if registration is None or not np.isfinite(registration.min_eigenvalue):
         weakest_sigma_m = np.inf
     else:
-        weakest_sigma_m = config.residual_sigma_m / np.sqrt(max(registration.min_eigenvalue, 1e-300))
+        sigma_m = registration.residual_sigma_m
+        if not np.isfinite(sigma_m):
+            sigma_m = config.residual_sigma_m
+        weakest_sigma_m = sigma_m / np.sqrt(max(registration.min_eigenvalue, 1e-300))
     if previous is None:
         step_m = odometry_disagreement_m = prediction_offset_m = 0.0
     else:
@@ -178,7 +194,7 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         registered=registered,
         motion_model_only=track.motion_model_only,
         n_rows=registration.n_rows if registration is not None else 0,
-        degenerate_axes=registration.degenerate_axes if registration is not None else 6,
+        prior_axes=_prior_axes(track),
         weakest_sigma_m=float(weakest_sigma_m),
         step_m=step_m,
         odometry_disagreement_m=odometry_disagreement_m,
