@@ -246,11 +246,6 @@ class SegmentationConfig:
         _closed(0.0, 90.0, "deg"),
         "surface: ground must lie on the ground below it in a sector this wide (0: off)",
     )
-    ground_surface_max_sector_deg: float = _key(
-        32.0,
-        _closed(0.0, 360.0, "deg"),
-        "surface: where the sector below holds under three rows of ground, it widens four-fold up to this",
-    )
     ground_surface_rows: int = _key(3, _closed(2, 256), "surface: the local line is fitted to this many rows below")
     ground_surface_margin_m: float = _key(
         0.1, _closed(0.0, 10.0, "m"), "surface: height above the local line allowed at zero distance"

@@ -231,58 +231,33 @@ def _check_surface(
         ground_surface_margin_m + d * tan(ground_surface_range_slope_deg) + |c| (d - d0)^2.
 
     Only heights above the line count (objects stand on the ground; a crest drops away below it).
-    Where the sector below holds ground on fewer than three rows (the parabola is undetermined: an
-    object close by hides the lower rows), the sector widens four-fold, up to
-    ``ground_surface_max_sector_deg``; where the local rows do not determine the line, it is fitted
-    to all the sector's ground below. Cells with no determined sector keep their mark.
-    ``points``: (n_top, C, 3) level frame.
+    Cells whose sector below holds fewer than three rows of ground (the parabola is undetermined)
+    or whose local rows span under a metre keep their mark. ``points``: (n_top, C, 3) level frame.
     """
     n_top, n_columns = points.shape[:2]
-    half_widths = _sector_half_widths(config, azimuth_resolution_rad, n_columns)
+    half_width = int(round(np.deg2rad(config.ground_surface_sector_deg) / 2.0 / azimuth_resolution_rad))
     distance = np.hypot(points[..., 0], points[..., 1])
     height = points[..., 2]
     tan_range = np.tan(np.deg2rad(config.ground_surface_range_slope_deg))
-    tan_threshold = np.tan(np.deg2rad(config.ground_angle_threshold_deg))
     # running sums over the rows below (prefix[i]: rows 0 .. i-1) of the moments of the accepted
-    # ground cells, 1, d, d^2, d^3, d^4, z, z d, z d^2; per sector width, the rows holding ground
+    # ground cells, 1, d, d^2, d^3, d^4, z, z d, z d^2, and the number of rows holding ground in the sector
     prefix = np.zeros((n_top + 1, n_columns, 8))
-    sector_rows = np.zeros((len(half_widths), n_columns))
+    sector_rows = np.zeros(n_columns)
     rows_with_ground = np.flatnonzero(ground[:n_top].any(axis=1))
     for i in range(int(rows_with_ground[-1]) + 1 if rows_with_ground.size else 0):
         on_row = ground[i]
         if i >= 3 and on_row.any():
             first_local = max(i - config.ground_surface_rows, 0)
-            moments = np.concatenate([prefix[i], prefix[i] - prefix[first_local]], axis=1)
-            sector = np.full((n_columns, 16), np.nan)
-            for level in range(len(half_widths) - 1, -1, -1):  # the narrowest determined sector wins
-                wide_enough = sector_rows[level] >= 3
-                sector[wide_enough] = _sector_sum(moments, half_widths[level])[wide_enough]
-            columns = np.flatnonzero(on_row & ~np.isnan(sector[:, 0]))
+            sector = _sector_sum(np.concatenate([prefix[i], prefix[i] - prefix[first_local]], axis=1), half_width)
+            columns = np.flatnonzero(on_row & (sector_rows >= 3))
             keep = _on_surface(
                 sector[columns, :8], sector[columns, 8:], distance[i, columns], height[i, columns], tan_range, config
             )
-            if i + 1 < n_top:  # the surface goes on rising beyond: ground the lower rows could not foresee
-                rise_m = height[i + 1, columns] - height[i, columns]
-                run_m = distance[i + 1, columns] - distance[i, columns]
-                with np.errstate(invalid="ignore"):
-                    keep |= ground[i + 1, columns] & (run_m > 0) & (np.abs(rise_m) <= tan_threshold * run_m)
             on_row[columns[~keep]] = False
         d, z = np.where(on_row, distance[i], 0.0), np.where(on_row, height[i], 0.0)
         one = on_row.astype(np.float64)
         prefix[i + 1] = prefix[i] + np.stack([one, d, d**2, d**3, d**4, z, z * d, z * d**2], axis=1)
-        for level, half_width in enumerate(half_widths):
-            sector_rows[level] += _sector_sum(one[:, None], half_width)[:, 0] > 0
-
-
-def _sector_half_widths(config: SegmentationConfig, azimuth_resolution_rad: float, n_columns: int) -> list[int]:
-    """Half widths in columns of the sectors tried, ``ground_surface_sector_deg`` growing four-fold
-    up to ``ground_surface_max_sector_deg``."""
-    widths_deg = [config.ground_surface_sector_deg]
-    while widths_deg[-1] * 4.0 <= config.ground_surface_max_sector_deg:
-        widths_deg.append(widths_deg[-1] * 4.0)
-    if widths_deg[-1] < config.ground_surface_max_sector_deg:
-        widths_deg.append(config.ground_surface_max_sector_deg)
-    return [min(int(round(np.deg2rad(w) / 2.0 / azimuth_resolution_rad)), (n_columns - 1) // 2) for w in widths_deg]
+        sector_rows += _sector_sum(one[:, None], half_width)[:, 0] > 0
 
 
 def _on_surface(
@@ -302,26 +277,17 @@ def _on_surface(
     determinant = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
     determined = np.abs(determinant) > 1e-9 * s0 * s2 * s4
     numerator = s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s2 * t1) + t0 * (s1 * s3 - s2 * s2)
-    # the local line from the rows just below; where they do not determine it (one row, or fewer
-    # than three cells: lower rows occluded or on an object), from all the sector's ground below
-    local_ok = (local[:, 0] >= 3) & (_spread(local) >= local[:, 0] * 1.0)
-    line = np.where(local_ok[:, None], local, below)
-    n, sum_d, sum_z, sum_zd = line[:, 0], line[:, 1], line[:, 5], line[:, 6]
+    n, sum_d, sum_dd, sum_z, sum_zd = local[:, 0], local[:, 1], local[:, 2], local[:, 5], local[:, 6]
     with np.errstate(invalid="ignore", divide="ignore"):
         d0, z0 = sum_d / n, sum_z / n
-        slope = (sum_zd - n * d0 * z0) / _spread(line)
+        spread = sum_dd - n * d0**2
+        slope = (sum_zd - n * d0 * z0) / spread
         offset = distance - d0
         above_m = height - (z0 + slope * offset)
         curvature = numerator / determinant
         tolerance = config.ground_surface_margin_m + distance * tan_range + np.abs(curvature) * offset**2
-        fitted = determined & (n >= 3) & (_spread(line) >= n * 1.0)
+        fitted = determined & (n >= 3) & (spread >= n * 1.0)
         return ~fitted | (above_m <= tolerance)
-
-
-def _spread(moments: np.ndarray) -> np.ndarray:
-    """(M,) sum of squared deviations of the distance from its mean, from (M, 8) moment sums."""
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return moments[:, 2] - moments[:, 1] ** 2 / moments[:, 0]
 
 
 def _release_contacts(image: RangeImage, ground: np.ndarray, supported: np.ndarray, config: SegmentationConfig) -> None:
