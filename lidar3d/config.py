@@ -248,6 +248,20 @@ class SegmentationConfig:
         0.04, _closed(0.0, 1.0, "m"), "contact: ground this close to its run's line stays ground"
     )
     ground_noise_m: float = _key(0.05, _closed(0.0, 1.0, "m"), "continuity: height steps this small pass at any angle")
+    ground_surface_sector_deg: float = _key(
+        2.0,
+        _closed(0.0, 90.0, "deg"),
+        "surface: ground must lie on the ground below it in a sector this wide (0: off)",
+    )
+    ground_surface_rows: int = _key(3, _closed(2, 256), "surface: the local line is fitted to this many rows below")
+    ground_surface_margin_m: float = _key(
+        0.1, _closed(0.0, 10.0, "m"), "surface: height above the local line allowed at zero distance"
+    )
+    ground_surface_range_slope_deg: float = _key(
+        0.1,
+        Range(0.0, 90.0, high_open=True, unit="deg"),
+        "surface: the allowed height grows by range * tan(this) (beam elevation error)",
+    )
     cluster_angle_deg: float = _key(60.0, _ACUTE_DEG, "neighbours join a cluster above this angle (segmentTheta)")
     min_cluster_points: int = _key(30, _closed(1, 1_000_000), "a cluster this big is kept")
     min_cluster_points_multi_ring: int = _key(

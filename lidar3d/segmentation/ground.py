@@ -23,6 +23,12 @@ change)``, so that range noise between close rows cannot tilt it), and a flat pa
    tan(``ground_height_slope_deg``).
 
 Runs continue above the ground rows (uphill roads seen by upward beams) but never start there.
+Then the surface check (``ground_surface_sector_deg`` > 0, default): the slope tests compare angles,
+and over the long gaps between the lowest beams' rings far out (34 m to 60-100 m on a VLP-16) a
+small angle makes a large height, so the base of a car or wall hit by the -1 deg beam at 60 m,
+0.75 m up, bends only 1.7 deg from flat ground. Each ground cell must also lie on the ground below it
+in its azimuth sector: at most a margin, a range term and the departure of the sector's observed
+curvature from the local line above that line (see ``_check_surface``).
 Last, a ground cell joined to the non-ground cell above it by the clustering criterion (beta >
 ``cluster_angle_deg``: one surface) belongs to that object, unless it lies within
 ``ground_support_margin_m`` of its run's line or at the ground level (checked from the top down).
@@ -100,6 +106,8 @@ def mark_ground(image: RangeImage, config: SegmentationConfig, sensor_config: Se
         ground[1:n_ground] |= flat
         return ground
     supported = _walk_up_columns(ground, points, step, run_m, angle, flat, n_ground, config)
+    if config.ground_surface_sector_deg > 0.0:
+        _check_surface(ground, points, image.azimuth_resolution_rad, config)
     _release_contacts(image, ground, supported, config)
     return ground
 
@@ -197,6 +205,89 @@ def _walk_up_columns(
             anchor[columns[move]] = points[i, columns[move]]
             last_ground[accepted] = points[i + 1, accepted]
     return supported
+
+
+def _sector_sum(values: np.ndarray, half_width: int) -> np.ndarray:
+    """(C, K) sums of ``values`` (C, K) over the columns ``c - half_width .. c + half_width``, wrapping."""
+    n_columns = values.shape[0]
+    half_width = min(half_width, (n_columns - 1) // 2)
+    padded = np.concatenate([values[n_columns - half_width :], values, values[:half_width]])
+    cumulative = np.concatenate([np.zeros((1, values.shape[1])), np.cumsum(padded, axis=0)])
+    return cumulative[2 * half_width + 1 :] - cumulative[:n_columns]
+
+
+def _check_surface(
+    ground: np.ndarray, points: np.ndarray, azimuth_resolution_rad: float, config: SegmentationConfig
+) -> None:
+    """Unmark (in place) ground cells that stand above the ground surface fitted below them.
+
+    Row by row upwards, each ground cell of row i is compared with the accepted ground of rows < i
+    in its azimuth sector (``ground_surface_sector_deg`` wide, centred on its column): a line
+    z = z0 + slope (d - d0) fitted to the sector's ground on the ``ground_surface_rows`` rows below
+    (d: horizontal distance, d0 their mean distance), and the curvature c of a parabola fitted to all
+    the sector's ground below (z'' = 2c). A surface with that curvature departs from its tangent at d0
+    by |c| (d - d0)^2, so the cell stays ground when its height above the line is at most
+
+        ground_surface_margin_m + d * tan(ground_surface_range_slope_deg) + |c| (d - d0)^2.
+
+    Only heights above the line count (objects stand on the ground; a crest drops away below it).
+    Cells whose sector below holds fewer than three rows of ground (the parabola is undetermined)
+    or whose local rows span under a metre keep their mark. ``points``: (n_top, C, 3) level frame.
+    """
+    n_top, n_columns = points.shape[:2]
+    half_width = int(round(np.deg2rad(config.ground_surface_sector_deg) / 2.0 / azimuth_resolution_rad))
+    distance = np.hypot(points[..., 0], points[..., 1])
+    height = points[..., 2]
+    tan_range = np.tan(np.deg2rad(config.ground_surface_range_slope_deg))
+    # running sums over the rows below (prefix[i]: rows 0 .. i-1) of the moments of the accepted
+    # ground cells, 1, d, d^2, d^3, d^4, z, z d, z d^2, and the number of rows holding ground in the sector
+    prefix = np.zeros((n_top + 1, n_columns, 8))
+    sector_rows = np.zeros(n_columns)
+    rows_with_ground = np.flatnonzero(ground[:n_top].any(axis=1))
+    for i in range(int(rows_with_ground[-1]) + 1 if rows_with_ground.size else 0):
+        on_row = ground[i]
+        if i >= 3 and on_row.any():
+            first_local = max(i - config.ground_surface_rows, 0)
+            sector = _sector_sum(np.concatenate([prefix[i], prefix[i] - prefix[first_local]], axis=1), half_width)
+            columns = np.flatnonzero(on_row & (sector_rows >= 3))
+            keep = _on_surface(
+                sector[columns, :8], sector[columns, 8:], distance[i, columns], height[i, columns], tan_range, config
+            )
+            on_row[columns[~keep]] = False
+        d, z = np.where(on_row, distance[i], 0.0), np.where(on_row, height[i], 0.0)
+        one = on_row.astype(np.float64)
+        prefix[i + 1] = prefix[i] + np.stack([one, d, d**2, d**3, d**4, z, z * d, z * d**2], axis=1)
+        sector_rows += _sector_sum(one[:, None], half_width)[:, 0] > 0
+
+
+def _on_surface(
+    below: np.ndarray,
+    local: np.ndarray,
+    distance: np.ndarray,
+    height: np.ndarray,
+    tan_range: float,
+    config: SegmentationConfig,
+) -> np.ndarray:
+    """(M,) bool: each cell lies within the tolerance of its sector's surface (see ``_check_surface``).
+
+    ``below``, ``local``: (M, 8) moment sums of the sector's ground below and on the local rows.
+    """
+    s0, s1, s2, s3, s4, t0, t1, t2 = below.T
+    # least-squares parabola z = a + b d + c d^2: c by Cramer's rule on the normal equations
+    determinant = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
+    determined = np.abs(determinant) > 1e-9 * s0 * s2 * s4
+    numerator = s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s2 * t1) + t0 * (s1 * s3 - s2 * s2)
+    n, sum_d, sum_dd, sum_z, sum_zd = local[:, 0], local[:, 1], local[:, 2], local[:, 5], local[:, 6]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d0, z0 = sum_d / n, sum_z / n
+        spread = sum_dd - n * d0**2
+        slope = (sum_zd - n * d0 * z0) / spread
+        offset = distance - d0
+        above_m = height - (z0 + slope * offset)
+        curvature = numerator / determinant
+        tolerance = config.ground_surface_margin_m + distance * tan_range + np.abs(curvature) * offset**2
+        fitted = determined & (n >= 3) & (spread >= n * 1.0)
+        return ~fitted | (above_m <= tolerance)
 
 
 def _release_contacts(image: RangeImage, ground: np.ndarray, supported: np.ndarray, config: SegmentationConfig) -> None:
