@@ -36,18 +36,11 @@ if str(REPO) not in sys.path:
 
 from lidar3d.cli.main import main as cli_main  # noqa: E402
 from lidar3d.io.bag_writer import write_cloud_bag  # noqa: E402
-from lidar3d.io.pointcloud2 import PointCloud2Parts, PointField, PointFieldType  # noqa: E402
+from lidar3d.io.pointcloud2 import PointCloud2Parts, encode_fields  # noqa: E402
 from lidar3d.io.scan_source import ScanSource  # noqa: E402
 from lidar3d.io.trajectory_io import read_tum  # noqa: E402
 from lidar3d.metrics.evaluation import evaluate_trajectory  # noqa: E402
 from lidar3d.records import Scan  # noqa: E402
-
-_CODES = {
-    "u2": PointFieldType.UINT16,
-    "f4": PointFieldType.FLOAT32,
-    "f8": PointFieldType.FLOAT64,
-    "u8": PointFieldType.UINT64,
-}
 
 
 def cloud(scan: Scan, time_field: tuple[str, str, np.ndarray] | None, *, ring: bool = True) -> PointCloud2Parts:
@@ -58,31 +51,7 @@ def cloud(scan: Scan, time_field: tuple[str, str, np.ndarray] | None, *, ring: b
         fields.append(("ring", "u2", scan.ring))
     if time_field is not None:
         fields.append(time_field)
-    offsets, offset = [], 0
-    for _name, code, _values in fields:
-        size = np.dtype(code).itemsize
-        offset = -(-offset // size) * size
-        offsets.append(offset)
-        offset += size
-    step = -(-offset // 8) * 8
-    dtype = np.dtype(
-        {"names": [f[0] for f in fields], "formats": ["<" + f[1] for f in fields], "offsets": offsets, "itemsize": step}
-    )
-    records = np.zeros(len(scan), dtype=dtype)
-    for name, _code, values in fields:
-        records[name] = values
-    return PointCloud2Parts(
-        stamp_ns=scan.stamp_ns,
-        frame_id="velodyne",
-        height=1,
-        width=len(scan),
-        fields=tuple(PointField(f[0], o, _CODES[f[1]]) for f, o in zip(fields, offsets)),
-        is_bigendian=False,
-        point_step=step,
-        row_step=step * len(scan),
-        data=records.view(np.uint8).reshape(-1).copy(),
-        is_dense=True,
-    )
+    return encode_fields(scan.stamp_ns, fields)
 
 
 def _ns(scan: Scan) -> np.ndarray:

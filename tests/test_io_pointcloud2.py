@@ -6,6 +6,7 @@ import dataclasses
 
 import numpy as np
 import pytest
+from synthetic_sweep import synthetic_sweep
 
 from lidar3d.errors import PointCloudError
 from lidar3d.io.pointcloud2 import (
@@ -27,27 +28,7 @@ STAMP_NS = 1_700_000_000_123_456_789
 def vlp_scan(sensor=VLP16, n_columns=90, stamp_ns=STAMP_NS, seed=0) -> Scan:
     """A sweep consistent with ``sensor``: beams on its elevation table, time growing with the
     clockwise azimuth from the first point (so ring-less and time-less decoding can recover both)."""
-    rng = np.random.default_rng(seed)
-    column = np.repeat(np.arange(n_columns), sensor.n_rings)
-    ring = np.tile(np.arange(sensor.n_rings), n_columns)
-    azimuth_cw = (column + 0.5) * 2.0 * np.pi / n_columns
-    elevation = sensor.elevation_rad[ring]
-    range_m = rng.uniform(2.0, 60.0, column.size)
-    points = np.stack(
-        [
-            range_m * np.cos(elevation) * np.cos(azimuth_cw),
-            -range_m * np.cos(elevation) * np.sin(azimuth_cw),
-            range_m * np.sin(elevation),
-        ],
-        axis=1,
-    )
-    return Scan(
-        stamp_ns=stamp_ns,
-        points=points,
-        intensity=rng.integers(0, 256, column.size).astype(np.float32),
-        ring=ring,
-        time_offset_s=column / n_columns * sensor.sweep_period_s,
-    )
+    return synthetic_sweep(n_columns, stamp_ns, sensor=sensor, seed=seed, azimuth_offset=0.5)
 
 
 def f32(values: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ import json
 
 import numpy as np
 import pytest
+from synthetic_sweep import synthetic_sweep
 
 from lidar3d.cli.main import main
 from lidar3d.errors import PointCloudError
@@ -24,22 +25,7 @@ STAMP_NS = 1_700_000_000_123_456_789
 
 def sweep(n_columns: int = 60, *, seed: int = 0, stamp_ns: int = STAMP_NS) -> Scan:
     """A VLP-16 sweep with times 0..0.1 s growing with the clockwise azimuth."""
-    rng = np.random.default_rng(seed)
-    column = np.repeat(np.arange(n_columns), VLP16.n_rings)
-    ring = np.tile(np.arange(VLP16.n_rings), n_columns)
-    azimuth = (column + 0.5) * 2.0 * np.pi / n_columns
-    elevation = VLP16.elevation_rad[ring]
-    range_m = rng.uniform(2.0, 60.0, column.size)
-    points = np.stack(
-        [
-            range_m * np.cos(elevation) * np.cos(azimuth),
-            -range_m * np.cos(elevation) * np.sin(azimuth),
-            range_m * np.sin(elevation),
-        ],
-        axis=1,
-    )
-    time_s = (column + 0.5) / n_columns * VLP16.sweep_period_s
-    return Scan(stamp_ns, points, rng.uniform(0, 255, column.size), ring, time_s)
+    return synthetic_sweep(n_columns, stamp_ns, seed=seed, azimuth_offset=0.5, time_offset=0.5)
 
 
 def decoder(sensor=VLP16) -> ScanDecoder:

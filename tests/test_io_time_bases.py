@@ -12,12 +12,13 @@ import re
 
 import numpy as np
 import pytest
+from synthetic_sweep import synthetic_sweep
 
 from lidar3d.cli.main import main
 from lidar3d.config import Config, InputConfig
 from lidar3d.errors import PointCloudError
 from lidar3d.io.bag_writer import write_cloud_bag
-from lidar3d.io.pointcloud2 import PointCloud2Parts, PointField, PointFieldType, TimeSource, decode_parts
+from lidar3d.io.pointcloud2 import PointCloud2Parts, TimeSource, decode_parts, encode_fields
 from lidar3d.io.scan_decoder import ScanDecoder
 from lidar3d.io.scan_source import ScanSource, open_scan_source
 from lidar3d.io.trajectory_io import read_tum
@@ -27,33 +28,11 @@ from lidar3d.sensors import VLP16
 
 STAMP_NS = 1_700_000_000_123_456_789
 PERIOD_S = VLP16.sweep_period_s
-_CODES = {
-    "u2": PointFieldType.UINT16,
-    "u4": PointFieldType.UINT32,
-    "f4": PointFieldType.FLOAT32,
-    "f8": PointFieldType.FLOAT64,
-    "i8": PointFieldType.INT64,
-    "u8": PointFieldType.UINT64,
-}
 
 
 def sweep(n_columns: int = 90, stamp_ns: int = STAMP_NS, seed: int = 0) -> Scan:
     """A VLP-16 sweep in firing order, times 0..T growing with the clockwise azimuth from the first point."""
-    rng = np.random.default_rng(seed)
-    column = np.repeat(np.arange(n_columns), VLP16.n_rings)
-    ring = np.tile(np.arange(VLP16.n_rings), n_columns)
-    azimuth = column * 2.0 * np.pi / n_columns
-    elevation = VLP16.elevation_rad[ring]
-    range_m = rng.uniform(2.0, 60.0, column.size)
-    points = np.stack(
-        [
-            range_m * np.cos(elevation) * np.cos(azimuth),
-            -range_m * np.cos(elevation) * np.sin(azimuth),
-            range_m * np.sin(elevation),
-        ],
-        axis=1,
-    )
-    return Scan(stamp_ns, points, rng.uniform(0, 255, column.size), ring, column / n_columns * PERIOD_S)
+    return synthetic_sweep(n_columns, stamp_ns, seed=seed)
 
 
 def cloud(scan: Scan, time: tuple[str, str, np.ndarray] | None, *, ring: bool = True) -> PointCloud2Parts:
@@ -65,31 +44,7 @@ def cloud(scan: Scan, time: tuple[str, str, np.ndarray] | None, *, ring: bool = 
         fields.append(("ring", "u2", scan.ring))
     if time is not None:
         fields.append(time)
-    offsets, offset = [], 0
-    for _name, code, _values in fields:
-        size = np.dtype(code).itemsize
-        offset = -(-offset // size) * size
-        offsets.append(offset)
-        offset += size
-    step = -(-offset // 8) * 8
-    dtype = np.dtype(
-        {"names": [f[0] for f in fields], "formats": ["<" + f[1] for f in fields], "offsets": offsets, "itemsize": step}
-    )
-    records = np.zeros(len(scan), dtype=dtype)
-    for name, _code, values in fields:
-        records[name] = values
-    return PointCloud2Parts(
-        stamp_ns=scan.stamp_ns,
-        frame_id="velodyne",
-        height=1,
-        width=len(scan),
-        fields=tuple(PointField(f[0], o, _CODES[f[1]]) for f, o in zip(fields, offsets)),
-        is_bigendian=False,
-        point_step=step,
-        row_step=step * len(scan),
-        data=records.view(np.uint8).reshape(-1).copy(),
-        is_dense=True,
-    )
+    return encode_fields(scan.stamp_ns, fields)
 
 
 def decoder() -> ScanDecoder:

@@ -43,6 +43,7 @@ against the data length, so a damaged header is a :class:`~lidar3d.errors.PointC
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import Enum, IntEnum
 from typing import Any
@@ -71,6 +72,7 @@ __all__ = [
     "PointFieldType",
     "TimeSource",
     "decode_parts",
+    "encode_fields",
     "encode_scan",
     "parts_from_message",
     "parts_to_message",
@@ -247,6 +249,42 @@ def encode_scan(scan: Scan, *, frame_id: str = "velodyne") -> PointCloud2Parts:
         point_step=VELODYNE_POINT_STEP,
         row_step=VELODYNE_POINT_STEP * n,
         data=records.view(np.uint8).reshape(-1),
+        is_dense=True,
+    )
+
+
+def encode_fields(
+    stamp_ns: int, fields: Sequence[tuple[str, str, np.ndarray]], *, frame_id: str = "velodyne"
+) -> PointCloud2Parts:
+    """A little-endian cloud of any layout: ``fields`` are ``(name, numpy code, (N,) values)`` in
+    order, the code one of :data:`_NUMPY_TYPE`'s (``"f4"``, ``"u2"``, ``"u8"``...); each field is
+    aligned to its size and the point step to 8 bytes, as drivers lay them out. Used to build the
+    layouts of other drivers (no ring, no time, absolute times) in tests and benchmarks."""
+    codes = {code: datatype for datatype, code in _NUMPY_TYPE.items()}
+    n = len(fields[0][2]) if fields else 0
+    offsets, offset = [], 0
+    for _name, code, _values in fields:
+        size = np.dtype(code).itemsize
+        offset = -(-offset // size) * size
+        offsets.append(offset)
+        offset += size
+    step = -(-offset // 8) * 8
+    dtype = np.dtype(
+        {"names": [f[0] for f in fields], "formats": ["<" + f[1] for f in fields], "offsets": offsets, "itemsize": step}
+    )
+    records = np.zeros(n, dtype=dtype)
+    for name, _code, values in fields:
+        records[name] = values
+    return PointCloud2Parts(
+        stamp_ns=int(stamp_ns),
+        frame_id=frame_id,
+        height=1,
+        width=n,
+        fields=tuple(PointField(name, o, codes[code]) for (name, code, _v), o in zip(fields, offsets)),
+        is_bigendian=False,
+        point_step=step,
+        row_step=step * n,
+        data=records.view(np.uint8).reshape(-1).copy(),
         is_dense=True,
     )
 
