@@ -208,7 +208,7 @@ def run_suite(args: argparse.Namespace) -> int:
     t_start = time.perf_counter()
     started = dt.datetime.now(dt.timezone.utc)
     load_start = _load()
-    methods = ["lidar3d"]
+    methods = [] if args.peers_only else ["lidar3d"]
     skipped: list[str] = []
     if not args.no_peers:
         for peer in args.peers:
@@ -363,6 +363,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="N", help="simulation seeds (default: 0)")
     parser.add_argument("--no-peers", action="store_true", help="run lidar3d only")
+    parser.add_argument(
+        "--peers-only", action="store_true", help="run the peers only (their results do not depend on lidar3d's code)"
+    )
     parser.add_argument(
         "--no-loop",
         action="store_true",

@@ -13,8 +13,8 @@ from lidar3d.records import Scan
 from lidar3d.segmentation import segment_scan
 from lidar3d.sensors import VLP16
 
-CONFIG = Config()
-OFF = dataclasses.replace(CONFIG.segmentation, ground_surface_sector_deg=0.0)  # the test before this check
+OFF = Config().segmentation  # the default: the test before this check
+CONFIG = dataclasses.replace(Config(), segmentation=dataclasses.replace(OFF, ground_surface_sector_deg=2.0))
 SENSOR_HEIGHT_M = 1.8
 
 
