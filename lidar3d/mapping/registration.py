@@ -24,9 +24,8 @@ uses). Directions the rows leave unobserved are handled in one of two ways:
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -130,7 +129,7 @@ class SolveResult:
     n_rows: int
     degenerate_axes: int
     min_eigenvalue: float
-    information: np.ndarray = dataclasses.field(default_factory=lambda: np.zeros((6, 6)))
+    information: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
     residual_sigma_m: float = float("nan")
 
 
