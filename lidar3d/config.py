@@ -431,6 +431,9 @@ class LoopConfig:
     hdl_graph_slam loop_detector, KISS-SLAM loop_closer (shared/reference/lego-loam-and-peers.md)."""
 
     enabled: bool = _key(True, None, "loop closure on")
+    source: str = _key(
+        "both", Choices(("distance", "place", "both")), "candidates from the distance gate, place recognition or both"
+    )
     search_radius_m: float = _key(
         7.0, _positive(10000.0, "m"), "candidates within this distance (historyKeyframeSearchRadius; LIO-SAM 15)"
     )
@@ -473,6 +476,20 @@ class LoopConfig:
     odometry_sigma_rotation_deg: float = _key(
         0.05, _positive(180.0, "deg"), "per keyframe step (LeGO-LOAM/LIO-SAM variance 1e-6 rad^2)"
     )
+    place_rings: int = _key(20, _closed(1, 1000), "Scan Context rings (Kim & Kim 2018: 20)")
+    place_sectors: int = _key(60, _closed(4, 3600), "Scan Context sectors (60: 6 degrees each)")
+    place_max_radius_m: float = _key(80.0, _positive(1000.0, "m"), "Scan Context radius (80 m)")
+    place_candidates: int = _key(10, _closed(1, 1000), "ring-key neighbours compared in full (10)")
+    place_threshold: float = _key(
+        0.2, _FRACTION, "descriptor distance below which a keyframe is the same place (SC reference: 0.13-0.2)"
+    )
+    place_confirm_keyframes: int = _key(
+        10, _closed(1, 1_000_000), "a place match beyond the drift allowance waits this many keyframes for a second"
+    )
+    place_consistency_m: float = _key(
+        1.0, _positive(1000.0, "m"), "two closures agree: cycle error within this plus correction_per_distance ..."
+    )
+    place_consistency_deg: float = _key(2.0, _positive(180.0, "deg"), "... of the spans' path, and this rotation")
     relinearize_threshold: float = _key(0.01, _closed(0.0, 100.0), "iSAM2 relinearization threshold (LIO-SAM 0.1)")
     extra_updates: int = _key(5, _closed(0, 1000), "iSAM2 updates after a loop (LIO-SAM 5)")
 

@@ -30,6 +30,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--max-scans", type=int, metavar="N", help="process at most N scans")
     parser.add_argument("--map-voxel", type=float, metavar="M", help="voxel size of map.pcd in metres")
     parser.add_argument("--no-loop", action="store_true", help="turn loop closure off")
+    parser.add_argument(
+        "--loop-source",
+        choices=("distance", "place", "both"),
+        help="loop candidates from the distance gate, place recognition (Scan Context) or both "
+        "(default: the config's loop.source, both)",
+    )
     parser.add_argument("--span", metavar="LOG", help="NovAtel SPAN log: evaluate the trajectory against it")
     parser.add_argument("--extrinsics", metavar="FILE", help="lidar-to-IMU extrinsic for --span (TOML/YAML)")
     parser.add_argument(
@@ -51,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
     if args.no_loop:
         config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
+    if args.loop_source:
+        config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, source=args.loop_source))
     if args.map_voxel is not None:
         try:
             config = config_with(config, {"mapping": {"map_voxel_m": args.map_voxel}})

@@ -29,6 +29,7 @@ __all__ = [
 LOOPS_CSV_COLUMNS = (
     "query_keyframe",
     "match_keyframe",
+    "source",
     "query_stamp_ns",
     "match_stamp_ns",
     "time_gap_s",
@@ -64,6 +65,7 @@ def loops_csv_text(candidates: Sequence[LoopCandidate]) -> str:
                 [
                     str(c.query),
                     str(c.match),
+                    c.source,
                     str(c.query_stamp_ns),
                     str(c.match_stamp_ns),
                     f"{c.time_gap_s:.3f}",

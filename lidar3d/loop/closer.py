@@ -18,6 +18,7 @@ lands exactly on its corrected keyframe pose and the scans between follow smooth
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.loop.candidates import find_candidates
+from lidar3d.loop.place_closures import PlaceClosures
 from lidar3d.loop.pose_graph import PoseGraph
 from lidar3d.loop.records import LoopCandidate, Verdict
 from lidar3d.loop.verification import build_match_cloud, verify_loop
@@ -115,11 +117,15 @@ def correct_scan_poses(
 
 
 class LoopCloser:
-    """Distance-gated loop candidates, ICP verification and an iSAM2 pose graph.
+    """Loop candidates (distance gate and place recognition), ICP verification and an iSAM2 pose
+    graph.
 
     Call :meth:`on_keyframe` after every keyframe; it adds the new keyframes to the pose graph
     (odometry factors from the poses given), looks for candidates of the latest keyframe, verifies
     them, and when one is accepted returns the corrected poses of all keyframes.
+
+    Candidates come from the distance gate (``loop.source`` ``distance`` or ``both``) and, when it
+    accepts none, from place recognition (``place`` or ``both``, :mod:`lidar3d.loop.place_closures`).
 
     Attributes:
         candidates: every verified candidate so far, in order (for ``loops.csv``).
@@ -140,6 +146,7 @@ class LoopCloser:
         self._path_m: list[float] = []  # travelled distance at each keyframe (given poses)
         self._stamps_ns: list[int] = []
         self._last_accepted_query = -(10**9)
+        self.places = PlaceClosures(config) if config.source != "distance" else None
 
     @property
     def closures(self) -> list[LoopCandidate]:
@@ -162,6 +169,8 @@ class LoopCloser:
             if keyframes[k].index != k:
                 raise ValueError(f"keyframe at position {k} has index {keyframes[k].index}")
             self._stamps_ns.append(int(keyframes[k].stamp_ns))
+            if self.places is not None:
+                self.places.add(self._cloud(keyframes[k]), poses[k])
             if k == 0:
                 self.graph.add_keyframe(0, poses[0])
                 self._path_m.append(0.0)
@@ -195,26 +204,40 @@ class LoopCloser:
         if not cfg.enabled or query - self._last_accepted_query <= cfg.cooldown_keyframes:
             return None
         stamps = np.array(self._stamps_ns, dtype=np.int64)
-        found = find_candidates(
-            poses[:, :3, 3],
-            stamps,
-            query,
-            radius_m=cfg.search_radius_m,
-            min_time_gap_s=cfg.min_time_gap_s,
-            horizontal=cfg.horizontal_distance,
-            max_candidates=cfg.max_candidates,
-        )
-        if not len(found):
-            return None
         records: list[LoopCandidate] = []
         accepted: list[LoopCandidate] = []
-        for match, distance in zip(found.matches.tolist(), found.distances_m.tolist()):
-            record = self._verify(keyframes, poses, stamps, query, match, distance)
-            records.append(record)
-            if record.accepted:
-                self.graph.add_loop(query, match, record.T_match_query, record.information)
-                accepted.append(record)
-                break
+        tried: set[int] = set()
+        if cfg.source != "place":
+            found = find_candidates(
+                poses[:, :3, 3],
+                stamps,
+                query,
+                radius_m=cfg.search_radius_m,
+                min_time_gap_s=cfg.min_time_gap_s,
+                horizontal=cfg.horizontal_distance,
+                max_candidates=cfg.max_candidates,
+            )
+            for match, distance in zip(found.matches.tolist(), found.distances_m.tolist()):
+                tried.add(match)
+                record = self._verify(keyframes, poses, stamps, query, match, distance)
+                records.append(record)
+                if record.accepted:
+                    accepted.append(record)
+                    break
+        if not accepted and self.places is not None:
+            gap_ns = int(round(cfg.min_time_gap_s * 1e9))
+            eligible = np.flatnonzero(stamps[:query] <= stamps[query] - gap_ns)
+            eligible = eligible[~np.isin(eligible, sorted(tried))]
+
+            def verify(match: int, guess: np.ndarray, limit_m: float) -> LoopCandidate:
+                distance = float(np.linalg.norm(poses[query, :2, 3] - poses[match, :2, 3]))
+                return self._verify(keyframes, poses, stamps, query, match, distance, guess, limit_m, "place")
+
+            accepted = self.places.closures(
+                query, eligible, poses, np.asarray(self._path_m), verify, self._drift_allowance_m, records
+            )
+        for record in accepted:
+            self.graph.add_loop(record.query, record.match, record.T_match_query, record.information)
         if accepted:
             dropped = set(self.graph.update())
             if dropped:
@@ -235,8 +258,24 @@ class LoopCloser:
             )
         return LoopUpdate(new_poses, poses.copy(), tuple(accepted), tuple(records))
 
+    def _drift_allowance_m(self, query: int, match: int) -> float:
+        """How far the estimate of ``query`` relative to ``match`` may be off: the largest
+        correction a distance closure may make."""
+        return self.config.max_correction_m + self.config.correction_per_distance * (
+            self._path_m[query] - self._path_m[match]
+        )
+
     def _verify(
-        self, keyframes: Sequence, poses: np.ndarray, stamps: np.ndarray, query: int, match: int, distance: float
+        self,
+        keyframes: Sequence,
+        poses: np.ndarray,
+        stamps: np.ndarray,
+        query: int,
+        match: int,
+        distance: float,
+        T_guess: np.ndarray | None = None,
+        limit_m: float | None = None,
+        source: str = "distance",
     ) -> LoopCandidate:
         cfg = self.config
         gap_ns = int(round(cfg.min_time_gap_s * 1e9))
@@ -248,9 +287,9 @@ class LoopCloser:
         target = build_match_cloud(
             [clouds.get(k, np.zeros((0, 3))) for k in range(hi)], poses, match, members, cfg.voxel_m
         )
-        T_guess = nearest_rigid(invert(poses[match]) @ poses[query])
-        path_gap = self._path_m[query] - self._path_m[match]
-        limit = cfg.max_correction_m + cfg.correction_per_distance * path_gap
+        if T_guess is None:
+            T_guess = nearest_rigid(invert(poses[match]) @ poses[query])
+        limit = self._drift_allowance_m(query, match) if limit_m is None else limit_m
         result = verify_loop(self._cloud(keyframes[query]), target, T_guess, cfg, max_correction_m=limit)
         return LoopCandidate(
             query=query,
@@ -267,6 +306,7 @@ class LoopCloser:
             reason=result.reason,
             T_match_query=result.T_match_query,
             information=result.information,
+            source=source,
         )
 
     def final_poses(self, extra_updates: int = 10) -> np.ndarray:
@@ -275,8 +315,6 @@ class LoopCloser:
 
 
 def _graph_rejected(record: LoopCandidate) -> LoopCandidate:
-    import dataclasses
-
     return dataclasses.replace(
         record,
         verdict=Verdict.GRAPH_ERROR,

@@ -21,6 +21,8 @@ class Verdict(str, enum.Enum):
     LOW_OVERLAP = "low_overlap"  # voxel overlap of the aligned clouds below the threshold
     LARGE_CORRECTION = "large_correction"  # ICP moved farther from the guess than the drift can explain
     GRAPH_ERROR = "graph_error"  # verified, but the pose graph could not take the factor
+    UNCONFIRMED = "unconfirmed"  # a place match that moves the estimate farther than drift explains,
+    # waiting for a second closure consistent with it (the accepted pair is recorded again)
 
 
 @dataclass(frozen=True, slots=True)
@@ -47,7 +49,9 @@ class LoopCandidate:
             initial guess when ICP did not run).
         information: (6,6) float64 information of ``T_match_query`` for a GTSAM ``BetweenFactor``:
             tangent order (rx, ry, rz, tx, ty, tz), rad and m, perturbation on the right (query
-            frame). Zero when not accepted.
+            frame). Zero when not accepted (kept for an unconfirmed place match).
+        source: who proposed the candidate: ``distance`` (the gate around the estimate) or
+            ``place`` (the Scan Context descriptor).
     """
 
     query: int
@@ -64,6 +68,7 @@ class LoopCandidate:
     reason: str
     T_match_query: np.ndarray
     information: np.ndarray
+    source: str = "distance"
 
     def __post_init__(self) -> None:
         if np.shape(self.T_match_query) != (4, 4):

@@ -51,6 +51,7 @@ __all__ = [
     "build_match_cloud",
     "loop_information",
     "point_information",
+    "pose_change",
     "verify_loop",
     "voxel_overlap",
 ]
@@ -186,7 +187,7 @@ def _rotation_deg(R: np.ndarray) -> float:
     return float(np.degrees(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def _pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
+def pose_change(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     """(translation m, rotation deg) of ``inv(T_a) @ T_b``."""
     delta = invert(T_a) @ T_b
     return float(np.linalg.norm(delta[:3, 3])), _rotation_deg(delta[:3, :3])
@@ -303,8 +304,8 @@ def verify_loop(
     final_distance = float(config.icp_max_correspondence_m[-1])
     assert result is not None  # the schedule is not empty (indexed just above)
     check = run(final_distance, T, config.icp_max_iterations)
-    moved_m, moved_deg = _pose_change(T, np.array(check.transformation))
-    correction_m, correction_deg = _pose_change(T_guess, T)
+    moved_m, moved_deg = pose_change(T, np.array(check.transformation))
+    correction_m, correction_deg = pose_change(T_guess, T)
     fitness = float(result.fitness)
     rmse = float(result.inlier_rmse)
     aligned = transform_points(T, source)

@@ -1,0 +1,54 @@
+"""Pairwise consistency of two loop measurements with the odometry between them.
+
+Two closures ``(q1, m1, T_m1q1)`` and ``(q2, m2, T_m2q2)`` and the estimated trajectory between
+their ends form a cycle: the pose of ``q2`` in ``m1``'s frame follows both from
+``T_m1q1 @ T_q1q2`` (first closure, then odometry along the query side) and from
+``T_m1m2 @ T_m2q2`` (odometry along the match side, then the second closure). Two correct
+closures agree up to the drift over the short odometry spans; a wrong one disagrees by its own
+error. This is the pairwise test of pairwise consistency maximisation (J. Mangelson et al.,
+"Pairwise Consistent Measurement Set Maximization for Robust Multi-robot Map Merging", ICRA
+2018), used here to let a place match that moves the trajectory by more than its drift allowance
+into the graph only when a second closure confirms it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from lidar3d.mapping.se3 import invert
+
+__all__ = ["cycle_error", "pairwise_consistent"]
+
+
+def cycle_error(
+    poses: np.ndarray, first: tuple[int, int, np.ndarray], second: tuple[int, int, np.ndarray]
+) -> tuple[float, float]:
+    """(metres, degrees) of the cycle through two closures ``(query, match, T_match_query)``
+    and the (K,4,4) keyframe ``poses`` (current estimate) between their ends."""
+    q1, m1, T_m1q1 = first
+    q2, m2, T_m2q2 = second
+    T_q1q2 = invert(poses[q1]) @ poses[q2]
+    T_m1m2 = invert(poses[m1]) @ poses[m2]
+    error = invert(T_m1m2 @ T_m2q2) @ (T_m1q1 @ T_q1q2)
+    angle = np.degrees(np.arccos(np.clip((np.trace(error[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)))
+    return float(np.linalg.norm(error[:3, 3])), float(angle)
+
+
+def pairwise_consistent(
+    poses: np.ndarray,
+    path_m: np.ndarray,
+    first: tuple[int, int, np.ndarray],
+    second: tuple[int, int, np.ndarray],
+    *,
+    tolerance_m: float,
+    tolerance_deg: float,
+    drift_per_distance: float,
+) -> tuple[bool, float, float]:
+    """Whether two closures agree: the cycle error within ``tolerance_m`` plus
+    ``drift_per_distance`` of the path travelled along both odometry spans (``path_m``: (K,)
+    travelled distance at each keyframe), and within ``tolerance_deg``. Returns the verdict and
+    the error (m, deg)."""
+    moved_m, moved_deg = cycle_error(poses, first, second)
+    span_m = abs(path_m[second[0]] - path_m[first[0]]) + abs(path_m[second[1]] - path_m[first[1]])
+    ok = moved_m <= tolerance_m + drift_per_distance * span_m and moved_deg <= tolerance_deg
+    return bool(ok), moved_m, moved_deg
