@@ -1,0 +1,155 @@
+"""Place recognition: Scan Context descriptors, the pairwise consistency test, and the loop closer
+finding a revisit that the distance gate cannot see because the estimate drifted too far."""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pytest
+
+from lidar3d.config import LoopConfig
+from lidar3d.loop import LoopCloser, Verdict
+from lidar3d.loop.consistency import cycle_error, pairwise_consistent
+from lidar3d.loop.place import PlaceIndex, ScanContext, level_rotation, place_guess
+from lidar3d.mapping.keyframes import Keyframe
+from lidar3d.mapping.se3 import exp_se3, invert, transform_points
+from test_loop_sim import KEYFRAME_STRIDE, _cloud, _sim
+
+
+def _pose(x: float, y: float, yaw_deg: float, roll_deg: float = 0.0, pitch_deg: float = 0.0) -> np.ndarray:
+    """(4,4) pose at (x, y, 0) with R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, w = np.radians([roll_deg, pitch_deg, yaw_deg])
+    Rx = np.array([[1, 0, 0], [0, np.cos(r), -np.sin(r)], [0, np.sin(r), np.cos(r)]])
+    Ry = np.array([[np.cos(p), 0, np.sin(p)], [0, 1, 0], [-np.sin(p), 0, np.cos(p)]])
+    Rz = np.array([[np.cos(w), -np.sin(w), 0], [np.sin(w), np.cos(w), 0], [0, 0, 1]])
+    T = np.eye(4)
+    T[:3, :3] = Rz @ Ry @ Rx
+    T[:3, 3] = [x, y, 0.0]
+    return T
+
+
+def _world(seed: int) -> np.ndarray:
+    """(N,3) world points: ground, walls and poles scattered around the origin."""
+    rng = np.random.default_rng(seed)
+    ground = np.column_stack([rng.uniform(-60, 60, (6000, 2)), np.zeros(6000)])
+    boxes = []
+    for _ in range(25):
+        cx, cy = rng.uniform(-50, 50, 2)
+        w, d, h = rng.uniform(2, 10), rng.uniform(2, 10), rng.uniform(2, 15)
+        pts = rng.uniform([-w / 2, -d / 2, 0], [w / 2, d / 2, h], (300, 3))
+        boxes.append(pts + [cx, cy, 0])
+    return np.concatenate([ground] + boxes)
+
+
+def _seen_from(world: np.ndarray, T_world_lidar: np.ndarray) -> np.ndarray:
+    return transform_points(invert(T_world_lidar), world)
+
+
+def test_scan_context_finds_the_same_place_turned_and_tilted_with_its_yaw():
+    world = _world(1)
+    first = _pose(0.0, 0.0, 10.0, roll_deg=2.0)
+    later = _pose(0.3, -0.2, 10.0 + 137.0, pitch_deg=-3.0)
+    index = PlaceIndex()
+    index.add(_seen_from(world, first), first)
+    index.add(_seen_from(_world(2), _pose(0, 0, 0)), _pose(0, 0, 0))  # another place
+    index.add(_seen_from(world, later), later)
+    matches = index.query(2, np.array([0, 1]))
+    assert [m.match for m in matches] == [0]
+    assert matches[0].distance < PlaceIndex().threshold
+    yaw_deg = np.degrees(matches[0].yaw_rad)
+    assert abs(((yaw_deg - 137.0) + 180) % 360 - 180) <= 6.0  # one sector
+    # the guess turns the levelled frames by that yaw and keeps both tilts
+    T_true = invert(first) @ later
+    guess = place_guess(first, later, np.radians(137.0))
+    np.testing.assert_allclose(guess[:3, :3], T_true[:3, :3], atol=1e-9)
+    assert np.allclose(guess[:3, 3], 0.0)
+
+
+def test_scan_context_of_different_places_is_far_and_empty_clouds_match_nothing():
+    a = ScanContext.of(_world(3), np.eye(4), rings=20, sectors=60, max_radius_m=80.0)
+    b = ScanContext.of(_world(4), np.eye(4), rings=20, sectors=60, max_radius_m=80.0)
+    distance, _ = a.distance(b, np.arange(60))
+    assert distance > 0.2
+    index = PlaceIndex()
+    index.add(np.zeros((0, 3)), np.eye(4))
+    index.add(_world(3), np.eye(4))
+    assert index.query(0, np.array([1])) == []
+    assert index.query(1, np.array([0])) == []
+
+
+def test_level_rotation_removes_roll_and_pitch_only():
+    T = _pose(5.0, 1.0, 70.0, roll_deg=4.0, pitch_deg=-2.0)
+    L = level_rotation(T)
+    up = L @ (T[:3, :3].T @ np.array([0.0, 0.0, 1.0]))  # world up, seen in the lidar, levelled
+    np.testing.assert_allclose(up, [0, 0, 1], atol=1e-12)
+    forward = L @ np.array([1.0, 0.0, 0.0])
+    assert abs(forward[1]) < 1e-12 and forward[0] > 0.99  # the heading stays along +x
+
+
+def test_pairwise_consistency_accepts_agreeing_closures_and_rejects_a_wrong_one():
+    truth = np.array([_pose(float(x), 0.0, 0.0) for x in range(10)])
+    estimate = truth.copy()
+    estimate[5:, 1, 3] += 12.0  # the estimate drifted 12 m sideways between keyframes 4 and 5
+    path = np.arange(10, dtype=float)
+    first = (6, 1, invert(truth[1]) @ truth[6])
+    second = (8, 3, invert(truth[3]) @ truth[8])
+    kwargs = dict(tolerance_m=1.0, tolerance_deg=2.0, drift_per_distance=0.01)
+    ok, error_m, _ = pairwise_consistent(estimate, path, first, second, **kwargs)
+    assert ok and error_m < 1e-9
+    wrong = (8, 3, invert(truth[3]) @ truth[8] @ _pose(0.0, 3.0, 0.0))
+    ok, error_m, _ = pairwise_consistent(estimate, path, first, wrong, **kwargs)
+    assert not ok and error_m == pytest.approx(3.0)
+    assert cycle_error(estimate, first, first) == pytest.approx((0.0, 0.0), abs=1e-9)
+
+
+def _badly_drifting_keyframes():
+    """The ``loop`` drive as keyframes whose odometry turns 0.1 deg too far per keyframe: at the
+    revisit the estimate is tens of metres off, beyond the 7 m distance gate."""
+    sim = _sim()
+    gt = sim.ground_truth.T_world_lidar
+    scans = list(range(0, len(sim), KEYFRAME_STRIDE))
+    bias = exp_se3(np.array([0.0, 0.0, 0.0, 0.0, 0.0, np.radians(0.1)]))
+    raw = [gt[scans[0]]]
+    for a, b in itertools.pairwise(scans):
+        raw.append(raw[-1] @ invert(gt[a]) @ gt[b] @ bias)
+    keyframes = []
+    for k, s in enumerate(scans):
+        cloud = _cloud(s) if (s < 80 or s > 600) else np.zeros((0, 3))
+        keyframes.append(Keyframe(k, s, int(sim.stamps_ns[s]), raw[k], cloud[:0], cloud))
+    return keyframes, np.array(raw), gt[scans]
+
+
+def _close_loops(config: LoopConfig):
+    keyframes, raw, truth = _badly_drifting_keyframes()
+    closer = LoopCloser(config)
+    correction = np.eye(4)
+    poses: list[np.ndarray] = []
+    for k in range(len(keyframes)):
+        poses.append(correction @ raw[k])
+        update = closer.on_keyframe(keyframes[: k + 1], np.array(poses))
+        if update is not None:
+            correction = update.correction @ correction
+            poses = list(update.poses)
+    return closer, raw, truth
+
+
+def test_place_recognition_closes_a_revisit_the_distance_gate_cannot_see():
+    config = LoopConfig()
+    closer, raw, truth = _close_loops(dataclasses.replace(config, source="distance"))
+    assert closer.closures == []
+    revisit_error_m = np.linalg.norm(raw[-1, :3, 3] - truth[-1, :3, 3])
+    assert revisit_error_m > 3 * config.search_radius_m
+
+    closer, raw, truth = _close_loops(config)  # source = both
+    closures = closer.closures
+    assert closures and {c.source for c in closures} == {"place"}
+    for c in closures:  # every accepted closure is right
+        T_true = invert(truth[c.match]) @ truth[c.query]
+        assert np.linalg.norm((invert(T_true) @ c.T_match_query)[:3, 3]) < 0.2
+    # the first large correction waited for a second, consistent one
+    assert any(c.verdict is Verdict.UNCONFIRMED for c in closer.candidates)
+    assert any("confirmed by keyframe" in c.reason for c in closures)
+    final = closer.final_poses()
+    assert np.linalg.norm(final[-1, :3, 3] - truth[-1, :3, 3]) < 0.1 * revisit_error_m
