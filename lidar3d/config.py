@@ -31,6 +31,7 @@ __all__ = [
     "Choices",
     "Config",
     "FeatureConfig",
+    "GeorefConfig",
     "GnssConfig",
     "HealthConfig",
     "InputConfig",
@@ -426,6 +427,40 @@ class GnssConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class GeorefConfig:
+    """Georeference of a run and the optional GNSS position factors (lidar3d.georef; docs/georeference.md)."""
+
+    method: str = _key(
+        "yaw", Choices(("yaw", "se3")), "SLAM -> ENU fit: yaw (roll/pitch from the INS attitude) or se3 (positions)"
+    )
+    max_fit_residual_m: float = _key(
+        5.0, _positive(1e6, "m"), "fit epochs whose residual exceeds this and 5x the median are dropped (jumps)"
+    )
+    factor_max_std_m: float = _key(
+        1.0, _positive(1000.0, "m"), "GNSS epochs reporting a horizontal std above this are not fused"
+    )
+    factor_std_floor_m: float = _key(0.05, _positive(100.0, "m"), "a fused epoch's std is at least this")
+    factor_spacing_m: float = _key(
+        2.0, _closed(0.0, 1e4, "m"), "fused epochs at least this far apart along the path (LIO-SAM: 5)"
+    )
+    factor_max_gap_s: float = _key(0.2, _positive(60.0, "s"), "longest INS interval interpolated to a keyframe stamp")
+    gate_floor_m: float = _key(1.0, _positive(1e4, "m"), "consistency gate: allowed disagreement with the odometry")
+    gate_sigmas: float = _key(4.0, _positive(100.0), "... plus this many combined GNSS stds")
+    gate_drift_fraction: float = _key(0.05, _closed(0.0, 1.0), "... plus this fraction of the path since the anchor")
+    gate_reanchor_gap_m: float = _key(
+        20.0, _positive(1e6, "m"), "after this much path without a GNSS candidate, a confirmed epoch re-anchors"
+    )
+    odometry_sigma_m: float = _key(0.02, _positive(100.0, "m"), "keyframe-to-keyframe odometry factor std")
+    odometry_sigma_fraction: float = _key(
+        0.02, _closed(0.0, 1.0), "... plus this fraction of the keyframe step (drift per metre)"
+    )
+    odometry_sigma_rad: float = _key(0.002, _positive(1.0, "rad"), "odometry factor rotation std")
+    hold_out_period_s: float = _key(
+        0.0, _closed(0.0, 3600.0, "s"), "fuse only even periods of this length, so eval can score the odd ones (0: all)"
+    )
+
+
+@dataclass(frozen=True, slots=True)
 class LoopConfig:
     """Loop closure and pose graph (lidar3d.loop). Sources: LeGO-LOAM/LIO-SAM mapOptmization,
     hdl_graph_slam loop_detector, KISS-SLAM loop_closer (shared/reference/lego-loam-and-peers.md)."""
@@ -520,6 +555,7 @@ class Config:
     health: HealthConfig = field(default_factory=HealthConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
+    georef: GeorefConfig = field(default_factory=GeorefConfig)
 
 
 def key_specs() -> Iterator[tuple[str, tuple[KeySpec, ...]]]:

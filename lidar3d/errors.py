@@ -8,6 +8,7 @@ exception keeps its traceback because it is a bug.
 __all__ = [
     "BagError",
     "ConfigError",
+    "GeoreferenceError",
     "GnssError",
     "Lidar3dError",
     "OutputError",
@@ -36,6 +37,10 @@ class PointCloudError(Lidar3dError):
 
 class GnssError(Lidar3dError):
     """A GNSS/INS log cannot be read or has no usable solution."""
+
+
+class GeoreferenceError(Lidar3dError):
+    """A run has no usable georeference, or a coordinate reference system cannot be used for an export."""
 
 
 class RegistrationError(Lidar3dError):
