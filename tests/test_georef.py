@@ -218,7 +218,7 @@ def test_gate_rejects_a_50_m_jump_and_keeps_the_rest():
     assert selection.rejected_consistency == 6
     assert not set(range(120, 126)) & set(selection.keyframe_index.tolist())
     assert len(selection) == len(truth) - 6
-    assert all("moved" in line and "allowed" in line for line in selection.rejections)
+    assert all("jumped 50.00 m away from the odometry" in line for line in selection.rejections)
 
 
 def test_gate_status_quality_spacing_and_hold_out():
@@ -238,8 +238,13 @@ def test_gate_status_quality_spacing_and_hold_out():
     assert np.diff(truth.positions_m[spaced.keyframe_index], axis=0).__abs__().sum(axis=1).min() > 4.9
 
 
-def test_gate_reanchors_after_an_outage_but_never_onto_a_lasting_jump():
+def test_gate_trusts_the_gnss_over_a_drifting_lidar_and_after_an_outage_but_not_in_a_lasting_jump():
     truth = _drive()
+    fast_drift = _drifted(truth, 0.8)  # 20 % short: the lidar in a featureless canyon
+    steady = select_gnss_factors(
+        fast_drift, _reference(truth), np.eye(4), np.eye(4), GeorefConfig(factor_spacing_m=0.0)
+    )
+    assert steady.rejected_consistency == 0 and len(steady) == len(truth)
     drifted = _drifted(truth, 0.85)  # 15 % drift: more than the gate's 5 % across a long outage
     keep = np.r_[0:60, 140:200]  # an outage of 80 epochs
     reference = _reference(Trajectory(truth.stamps_ns[keep], truth.T_world_lidar[keep]))
@@ -266,3 +271,15 @@ def test_fusion_pulls_a_drifted_trajectory_onto_the_gnss():
 def test_fuse_positions_refuses_too_few_measurements():
     with pytest.raises(ValueError, match=r"at least 3 measurements"):
         fuse_positions(np.tile(np.eye(4), (3, 1, 1)), np.full((2, 6), 0.1), [0, 1], np.zeros((2, 3)), np.ones((2, 3)))
+
+
+def test_held_out_scoring_keeps_only_odd_periods():
+    from lidar3d.metrics.span_eval import fusion_disclosure
+
+    truth = _drive(n=40, dt_s=0.25)  # 10 s
+    disclosure, scored = fusion_disclosure(truth, 12, 1.0)
+    assert disclosure.held_out_only and disclosure.poses_total == 40
+    assert ((scored.stamps_ns // 1_000_000_000) % 2 == 1).all() and len(scored) == 20
+    assert "held-out epochs only (20 of 40 poses" in disclosure.line()
+    everything, same = fusion_disclosure(truth, 12, 0.0)
+    assert not everything.held_out_only and len(same) == 40 and "not independent" in everything.line()

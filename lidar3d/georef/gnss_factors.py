@@ -14,14 +14,16 @@ Choice of the epochs, in order:
 3. **Hold-out**: with ``hold_out_period_s`` P > 0, only epochs in even periods (floor(t / P) even)
    are fused, so the odd ones can score the result.
 4. **Spacing**: at least ``factor_spacing_m`` of path between fused epochs.
-5. **Consistency with the odometry** (the jump test): the displacement between the last accepted epoch
-   a and the candidate b, by GNSS and by the lidar (rotated into ENU by the initial georeference),
-   must agree within ``gate_floor_m + gate_sigmas * sqrt(sigma_a^2 + sigma_b^2) + gate_drift_fraction
-   * path(a, b)`` (horizontal and vertical together). A jump of metres is rejected, and logged with
-   its size. The first anchor must itself be confirmed by the next candidate. After a stretch of more
-   than ``gate_reanchor_gap_m`` without any candidate (GNSS outage: the lidar may have drifted more
-   than the gate allows), a candidate confirmed by the next one becomes the new anchor; a stretch of
-   rejected candidates never re-anchors (a jump that persists stays rejected).
+5. **Consistency with the odometry** (the jump test): between consecutive candidates p and b, the
+   GNSS displacement and the lidar's (rotated into ENU by the initial georeference) must agree within
+   ``gate_floor_m + gate_sigmas * sqrt(sigma_p^2 + sigma_b^2) + gate_drift_fraction * path(p, b)``.
+   A step beyond that is a jump of the GNSS (its start, or its end when it jumps back): its
+   disagreement is added to the track's offset, and candidates are fused only while the offset is
+   within the same allowance. A jump of metres is therefore rejected for as long as it lasts, and
+   logged with its size, while a slow drift of the lidar (a degenerate canyon, where the GNSS is the
+   better of the two) never accumulates. After more than ``gate_reanchor_gap_m`` of path without a
+   candidate (an outage) the offset is reset: the GNSS is trusted again. A jump already present at
+   the first candidate, or starting exactly at the end of an outage, is not detected.
 
 The odometry factors between consecutive keyframes have a std of ``odometry_sigma_m +
 odometry_sigma_fraction * step`` and ``odometry_sigma_rad``; the graph's GNSS factors sit behind a
@@ -77,16 +79,10 @@ class GnssFactorSelection:
         return int(len(self.keyframe_index))
 
 
-def _gate(
-    config: GeorefConfig, p_gnss: np.ndarray, p_odom: np.ndarray, sigma: np.ndarray, path_m: np.ndarray, a: int, b: int
-) -> tuple[bool, float, float]:
-    """(consistent, disagreement m, allowed m) of candidate b against anchor a."""
-    disagreement = float(np.linalg.norm((p_gnss[b] - p_gnss[a]) - (p_odom[b] - p_odom[a])))
+def _allowed(config: GeorefConfig, sigma: np.ndarray, path_m: np.ndarray, a: int, b: int) -> float:
+    """The disagreement allowed between the GNSS and the odometry from epoch a to epoch b, metres."""
     combined = float(np.sqrt(np.sum(sigma[a] ** 2 + sigma[b] ** 2)))
-    allowed = (
-        config.gate_floor_m + config.gate_sigmas * combined + config.gate_drift_fraction * abs(path_m[b] - path_m[a])
-    )
-    return disagreement <= allowed, disagreement, allowed
+    return config.gate_floor_m + config.gate_sigmas * combined + config.gate_drift_fraction * abs(path_m[b] - path_m[a])
 
 
 def select_gnss_factors(
@@ -121,31 +117,23 @@ def select_gnss_factors(
     accepted: list[int] = []
     rejections: list[str] = []
     n_spacing = 0
-    rejected_since_anchor = False
+    offset = np.zeros(3)  # the GNSS track's displacement from the trusted one, summed over its jumps
     for position, b in enumerate(candidates.tolist()):
-        following = candidates[position + 1 : position + 2]
-        confirmed = not len(following) or _gate(config, p_gnss, p_odom, sigma, path_m, b, int(following[0]))[0]
-        if not accepted:
-            if confirmed:
-                accepted.append(b)
-            else:
-                rejections.append(_rejection_line(pairs.stamps_ns[b], None, None, "not confirmed by the next epoch"))
+        if position:
+            p = int(candidates[position - 1])
+            innovation = (p_gnss[b] - p_gnss[p]) - (p_odom[b] - p_odom[p])
+            gap_m = path_m[b] - path_m[p]
+            if gap_m > config.gate_reanchor_gap_m:
+                offset[:] = 0.0  # after an outage the GNSS is trusted again (the lidar may have drifted)
+            elif np.linalg.norm(innovation) > _allowed(config, sigma, path_m, p, b):
+                offset += innovation  # a step of the GNSS that the lidar did not make: a jump starts or ends
+        if np.linalg.norm(offset) > _allowed(config, sigma, path_m, b, b):
+            rejections.append(_rejection_line(pairs.stamps_ns[b], float(np.linalg.norm(offset)), config.gate_floor_m))
             continue
-        a = accepted[-1]
-        gap_m = path_m[b] - path_m[a]
-        if gap_m < config.factor_spacing_m:
+        if accepted and path_m[b] - path_m[accepted[-1]] < config.factor_spacing_m:
             n_spacing += 1
             continue
-        ok, disagreement, allowed = _gate(config, p_gnss, p_odom, sigma, path_m, a, b)
-        if not ok and not rejected_since_anchor and gap_m > config.gate_reanchor_gap_m and confirmed:
-            logger.info("GNSS factor: re-anchored after %.0f m without GNSS (lidar drift %.2f m)", gap_m, disagreement)
-            ok = True
-        if not ok:
-            rejections.append(_rejection_line(pairs.stamps_ns[b], disagreement, allowed, ""))
-            rejected_since_anchor = True
-            continue
         accepted.append(b)
-        rejected_since_anchor = False
     for line in rejections[:10]:
         logger.warning("%s", line)
     if len(rejections) > 10:
@@ -165,13 +153,11 @@ def select_gnss_factors(
     )
 
 
-def _rejection_line(stamp_ns: int, disagreement: float | None, allowed: float | None, reason: str) -> str:
+def _rejection_line(stamp_ns: int, offset_m: float, floor_m: float) -> str:
     stamp = f"{int(stamp_ns) // 1_000_000_000}.{int(stamp_ns) % 1_000_000_000 // 1_000_000:03d}"
-    if disagreement is None or allowed is None:
-        return f"GNSS factor at {stamp} s rejected: {reason}"
     return (
-        f"GNSS factor at {stamp} s rejected: the GNSS moved {disagreement:.2f} m differently from the odometry "
-        f"since the last accepted epoch (allowed {allowed:.2f} m)"
+        f"GNSS factor at {stamp} s rejected: the GNSS track jumped {offset_m:.2f} m away from the odometry's "
+        f"(allowed about {floor_m:.2f} m)"
     )
 
 

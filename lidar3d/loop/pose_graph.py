@@ -23,6 +23,10 @@ exactly once, then cleared (DESIGN.md: iSAM2 gets only the new factors and value
 linear system), the error is logged, the new loop factors of that batch are retried one at a time
 on a graph rebuilt from the factors already accepted, and every loop factor that still fails is
 dropped; odometry is never dropped.
+
+**GNSS position factors.** :func:`fuse_positions` solves a separate batch graph after a run: the
+final keyframe chain as odometry factors plus ``GPSFactor`` s (position-only, on the keyframe's
+lidar origin, Huber) chosen by :mod:`lidar3d.georef.gnss_factors` (LIO-SAM ``addGPSFactor``).
 """
 
 from __future__ import annotations
