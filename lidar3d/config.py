@@ -446,7 +446,9 @@ class GeorefConfig:
     factor_max_gap_s: float = _key(0.2, _positive(60.0, "s"), "longest INS interval interpolated to a keyframe stamp")
     gate_floor_m: float = _key(1.0, _positive(1e4, "m"), "consistency gate: allowed disagreement with the odometry")
     gate_sigmas: float = _key(4.0, _positive(100.0), "... plus this many combined GNSS stds")
-    gate_drift_fraction: float = _key(0.05, _closed(0.0, 1.0), "... plus this fraction of the path since the anchor")
+    gate_drift_fraction: float = _key(
+        0.25, _closed(0.0, 10.0), "... plus this fraction of the path between the two epochs (lidar drift)"
+    )
     gate_reanchor_gap_m: float = _key(
         20.0, _positive(1e6, "m"), "after this much path without a GNSS candidate, a confirmed epoch re-anchors"
     )
