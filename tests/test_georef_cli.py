@@ -215,3 +215,29 @@ def test_gnss_factors_need_span(simulated, tmp_path, capsys):
     assert "--gnss-factors needs --span" in capsys.readouterr().err
     assert _run(simulated.bag, "--out", tmp_path / "y", "--span", simulated.span_log, "--gnss-hold-out", "1") == 1
     assert "--gnss-hold-out needs --gnss-factors" in capsys.readouterr().err
+
+
+def test_hold_out_fuses_even_seconds_and_scores_the_odd_ones(simulated, tmp_path, capsys):
+    out = tmp_path / "held"
+    code = _run(
+        simulated.bag,
+        "--out",
+        out,
+        "--span",
+        simulated.span_log,
+        "--extrinsics",
+        simulated.extrinsics,
+        "--gnss-factors",
+        "--gnss-hold-out",
+        "1",
+    )
+    assert code == 0
+    factors = json.loads((out / "georef.json").read_text())["gnss_factors"]
+    assert factors["hold_out_period_s"] == 1.0 and factors["rejected_hold_out"] > 0
+    assert all((s // 1_000_000_000) % 2 == 0 for s in factors["fused_stamps_ns"])
+    fusion = json.loads((out / "eval" / "report.json").read_text())["fusion"]
+    assert fusion["held_out_only"] and 0 < fusion["poses_scored"] < fusion["poses_total"]
+    capsys.readouterr()
+    argv = ["-q", "eval", str(out / "trajectory_tum.txt"), "--span", str(simulated.span_log), "--held-out"]
+    assert main([*argv, "--extrinsics", str(simulated.extrinsics), "--out", str(tmp_path / "e")]) == 0
+    assert "scored on the held-out epochs only" in capsys.readouterr().out

@@ -127,8 +127,9 @@ def select_gnss_factors(
                 offset[:] = 0.0  # after an outage the GNSS is trusted again (the lidar may have drifted)
             elif np.linalg.norm(innovation) > _allowed(config, sigma, path_m, p, b):
                 offset += innovation  # a step of the GNSS that the lidar did not make: a jump starts or ends
-        if np.linalg.norm(offset) > _allowed(config, sigma, path_m, b, b):
-            rejections.append(_rejection_line(pairs.stamps_ns[b], float(np.linalg.norm(offset)), config.gate_floor_m))
+        allowed = _allowed(config, sigma, path_m, b, b)
+        if np.linalg.norm(offset) > allowed:
+            rejections.append(_rejection_line(pairs.stamps_ns[b], float(np.linalg.norm(offset)), allowed))
             continue
         if accepted and path_m[b] - path_m[accepted[-1]] < config.factor_spacing_m:
             n_spacing += 1
@@ -153,11 +154,11 @@ def select_gnss_factors(
     )
 
 
-def _rejection_line(stamp_ns: int, offset_m: float, floor_m: float) -> str:
+def _rejection_line(stamp_ns: int, offset_m: float, allowed_m: float) -> str:
     stamp = f"{int(stamp_ns) // 1_000_000_000}.{int(stamp_ns) % 1_000_000_000 // 1_000_000:03d}"
     return (
         f"GNSS factor at {stamp} s rejected: the GNSS track jumped {offset_m:.2f} m away from the odometry's "
-        f"(allowed about {floor_m:.2f} m)"
+        f"(allowed {allowed_m:.2f} m)"
     )
 
 
