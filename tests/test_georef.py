@@ -283,3 +283,20 @@ def test_held_out_scoring_keeps_only_odd_periods():
     assert "held-out epochs only (20 of 40 poses" in disclosure.line()
     everything, same = fusion_disclosure(truth, 12, 0.0)
     assert not everything.held_out_only and len(same) == 40 and "not independent" in everything.line()
+
+
+def test_numpy_pcd_reader_equals_open3d_and_refuses_a_truncated_file(tmp_path):
+    from lidar3d.errors import OutputError
+    from lidar3d.io.pcd import read_pcd, read_pcd_fields, write_pcd
+
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(500, 3)) * 100.0
+    write_pcd(tmp_path / "m.pcd", points, intensity=rng.uniform(0, 255, 500))
+    a, fa = read_pcd(tmp_path / "m.pcd")
+    b, fb = read_pcd_fields(tmp_path / "m.pcd")
+    np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(fa["intensity"].reshape(-1), fb["intensity"])
+    data = (tmp_path / "m.pcd").read_bytes()
+    (tmp_path / "cut.pcd").write_bytes(data[:-100])
+    with pytest.raises(OutputError, match=r"cut\.pcd: truncated point cloud \(493 of 500 points\)"):
+        read_pcd_fields(tmp_path / "cut.pcd")

@@ -92,9 +92,9 @@ def export_run(run_dir: str | Path, crs: str, out: str | Path) -> ExportOutcome:
     output_crs = resolve_crs(crs, georef.origin, for_map=is_map)
     T = georef.T_enu_world
     if is_map:
-        from lidar3d.io.pcd import read_pcd
+        from lidar3d.io.pcd import read_pcd_fields
 
-        points_world, fields = read_pcd(run_dir / "map.pcd")
+        points_world, fields = read_pcd_fields(run_dir / "map.pcd")
         intensity = fields.get("intensity", np.zeros(len(points_world), np.float32)).astype(np.float32)
         coordinates = enu_to_crs_points(points_world @ T[:3, :3].T + T[:3, 3], georef.origin, output_crs)
         _write_map(out, suffix, coordinates, intensity, output_crs)
