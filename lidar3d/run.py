@@ -31,6 +31,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -48,6 +49,11 @@ from lidar3d.pipeline import SlamPipeline, SlamResult
 from lidar3d.prefetch import open_prepared_scans
 from lidar3d.records import Trajectory
 from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
+
+if TYPE_CHECKING:
+    from lidar3d.georef.georeference import Georeference, GnssFusionRecord
+    from lidar3d.gnss.novatel import SpanLog
+    from lidar3d.gnss.reference import InsReference
 
 __all__ = ["RunOutcome", "run_bag"]
 
@@ -169,7 +175,7 @@ class _RunPublisher:
         self.summary = publish_set(self.out_dir, summary, write, rows=rows, keep=keep)
         return self.summary
 
-    def publish_evaluation(self, evaluation, georef, summary: RunSummary) -> RunSummary:
+    def publish_evaluation(self, evaluation, georef: Georeference, summary: RunSummary) -> RunSummary:
         """Add the evaluation report (``eval/``) and ``georef.json`` to the published set, with ``summary``."""
         from lidar3d.export.span_report import write_span_report
 
@@ -178,8 +184,7 @@ class _RunPublisher:
 
         def write(staging: Path) -> None:
             write_text_atomic(staging / "georef.json", georef.to_json())
-            if evaluation is not None:
-                write_span_report(evaluation, staging / "eval")
+            write_span_report(evaluation, staging / "eval")
 
         self.summary = publish_set(self.out_dir, summary, write, keep=keep)
         return self.summary
@@ -391,8 +396,8 @@ class _SpanInputs:
     """The SPAN log of a run, read once: the decoded log, its INS reference in ENU, the extrinsic."""
 
     path: Path
-    log: object  # lidar3d.gnss.novatel.SpanLog
-    reference: object  # lidar3d.gnss.reference.InsReference
+    log: SpanLog
+    reference: InsReference
     T_imu_lidar: np.ndarray
     sha256: str
 
@@ -407,13 +412,13 @@ class _SpanInputs:
         T = np.eye(4) if T_imu_lidar is None else np.asarray(T_imu_lidar, dtype=np.float64)
         return cls(Path(span_log), log_record, reference, T, file_sha256(span_log))
 
-    def fit(self, trajectory: Trajectory, config: Config):
+    def fit(self, trajectory: Trajectory, config: Config) -> Georeference:
         """The georeference of ``trajectory`` (:func:`lidar3d.georef.georeference.fit_georeference`)."""
         from lidar3d.georef.georeference import fit_georeference
 
         return fit_georeference(
             trajectory,
-            self.reference,  # type: ignore[arg-type]
+            self.reference,
             T_imu_lidar=self.T_imu_lidar,
             method=config.georef.method,
             max_gap_s=config.gnss.max_association_gap_s,
@@ -423,7 +428,9 @@ class _SpanInputs:
         )
 
 
-def _fuse_gnss(result: SlamResult, span: _SpanInputs, config: Config, paths, start: int, done: int):
+def _fuse_gnss(
+    result: SlamResult, span: _SpanInputs, config: Config, paths, start: int, done: int
+) -> tuple[SlamResult, GnssFusionRecord]:
     """The result with the GNSS factors fused and the map placed again, and the fusion's record."""
     from lidar3d.georef.georeference import GnssFusionRecord
     from lidar3d.georef.gnss_factors import fuse_gnss
@@ -433,7 +440,7 @@ def _fuse_gnss(result: SlamResult, span: _SpanInputs, config: Config, paths, sta
     fusion = fuse_gnss(
         result.trajectory,
         result.keyframes,
-        span.reference,  # type: ignore[arg-type]
+        span.reference,
         span.T_imu_lidar,
         initial.T_enu_world,
         config.georef,
@@ -462,7 +469,7 @@ def _fuse_gnss(result: SlamResult, span: _SpanInputs, config: Config, paths, sta
     return fused, record
 
 
-def _evaluate(result: SlamResult, span: _SpanInputs, config: Config, out: Path, fusion):
+def _evaluate(result: SlamResult, span: _SpanInputs, config: Config, out: Path, fusion: GnssFusionRecord | None):
     """The evaluation against the SPAN log and its summary record (as a dict); writes nothing.
 
     A trajectory fused with the log is scored on the held-out periods only when there are any
@@ -478,7 +485,7 @@ def _evaluate(result: SlamResult, span: _SpanInputs, config: Config, out: Path, 
         disclosure, estimate = fusion_disclosure(estimate, len(fusion.fused_stamps_ns), fusion.hold_out_period_s)
     evaluation = evaluate_against_span(
         estimate,
-        span.log,  # type: ignore[arg-type]
+        span.log,
         T_imu_lidar=span.T_imu_lidar,
         config=config.gnss,
         trajectory_source=str(out / "trajectory_tum.txt"),
