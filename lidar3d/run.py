@@ -39,6 +39,7 @@ from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import Lidar3dError, OutputError
 from lidar3d.io.atomic import write_text_atomic
 from lidar3d.io.health_csv import write_health_csv
+from lidar3d.io.packet_source import input_config
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.run_folder import existing_run_outputs, publish_set
 from lidar3d.io.scan_source import open_scan_source
@@ -226,6 +227,7 @@ def run_bag(
     # Check the evaluation inputs and the output folder now, not after a run of hours.
     T_imu_lidar = _check_evaluation_inputs(span_log, extrinsics)
     _check_output_folder(out, overwrite)
+    config = input_config(paths, config)  # raw packets: the sensor model and rate they show
 
     pipeline = SlamPipeline(config)
     publisher = _RunPublisher(out, config)
