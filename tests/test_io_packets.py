@@ -84,8 +84,8 @@ def test_velodyne_scan_bags_give_the_pcap_scans(tmp_path, storage, pcap_35):
     assert all(len(s) == 28800 for s in scans)
     # the bag's messages are the driver's sweeps; recut_sweeps cuts them at the azimuth instead
     _recut_source, recut = _scans(bag, _config(recut_sweeps=True, cut_azimuth_deg=180.0))
-    # cuts at 180, 540 and 900 deg (packets 38, 113, 189); the packets after the last are unfinished
-    assert [s.stamp_ns for s in recut] == [packets[i][0] for i in (0, 38, 113)]
+    # cuts at 180, 540 and 900 deg (packets 38, 114, 189); the packets after the last are unfinished
+    assert [s.stamp_ns for s in recut] == [packets[i][0] for i in (0, 38, 114)]
 
 
 def test_dual_return_keeps_the_return_asked_for(tmp_path):
