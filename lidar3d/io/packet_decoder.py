@@ -40,6 +40,8 @@ _LAST_FLAG = 2
 #: velodyne-decoder drops returns nearer than this (a distance of 0 is "no return").
 _DECODER_MIN_RANGE_M = 0.05
 _DECODER_MAX_RANGE_M = 500.0
+# Columns of velodyne-decoder's contiguous output (velodyne_decoder.PointField).
+_COLUMN_INTENSITY, _COLUMN_TIME, _COLUMN_RING, _COLUMN_RETURN_TYPE = 3, 4, 6, 7
 
 
 def sensor_stamp_ns(packet: RawPacket) -> int:
@@ -149,21 +151,24 @@ class PacketDecoder:
                 data = data[:1205] + product
             batch.append(vd.VelodynePacket(packet.host_ns * 1e-9, data))
         try:
-            _stamp, cloud = self._decoder.decode(batch, True)
+            _stamp, cloud = self._decoder.decode(batch, False)  # (N, 8) float32: x y z intensity time column ring type
         except Exception as err:  # the C++ decoder raises RuntimeError/ValueError on packets it cannot read
             raise PacketError(f"velodyne-decoder cannot decode the sweep: {err}") from err
         if self._flag is not None:
-            cloud = cloud[(cloud["return_type"] & self._flag) != 0]
-        points = np.stack([cloud["x"], cloud["y"], cloud["z"]], axis=1).astype(np.float64)
+            cloud = cloud[(cloud[:, _COLUMN_RETURN_TYPE].astype(np.uint8) & self._flag) != 0]
+        values = cloud.astype(np.float64)
+        points = values[:, :3]
         n_input = len(points)
         near = np.einsum("ij,ij->i", points, points) < self.min_range_m * self.min_range_m
-        keep = ~near
+        n_near = int(np.count_nonzero(near))
+        if n_near:
+            values = values[~near]
         scan = Scan(
             stamp_ns=self.stamp_ns(packets[0]),
-            points=points[keep],
-            intensity=cloud["intensity"][keep],
-            ring=cloud["ring"][keep],
-            time_offset_s=cloud["time"][keep].astype(np.float64),
+            points=values[:, :3],
+            intensity=values[:, _COLUMN_INTENSITY],
+            ring=values[:, _COLUMN_RING].astype(np.uint16),
+            time_offset_s=values[:, _COLUMN_TIME],
         )
         sane, counts = sanitize_scan(scan, self.sensor)
-        return sane, DecodeStats(n_input, int(np.count_nonzero(near)), TimeSource.RELATIVE), counts
+        return sane, DecodeStats(n_input, n_near, TimeSource.RELATIVE), counts
