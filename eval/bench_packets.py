@@ -3,8 +3,9 @@
 For each real capture in ``../shared/data/real`` (see its SOURCES.md) the source is opened once and
 its sweeps are read ``--passes`` times (pcap or bag reading, sweep assembly, velodyne-decoder,
 return selection, minimum range and the sanity stage: everything ``lidar3d run`` does before the
-front end). Also timed: velodyne-decoder's own ``read_pcap`` on the pcap files, the floor of any
-wrapper around it. Prints a markdown table (docs/benchmarks.md#raw-packet-decoding). Usage::
+front end), timed by the wall clock and by the process's CPU time (which a shared, loaded machine
+disturbs less). Also timed: velodyne-decoder's own ``read_pcap`` on the pcap files, the floor of
+any wrapper around it. Prints a markdown table (docs/benchmarks.md#raw-packet-decoding). Usage::
 
     .venv/bin/python eval/bench_packets.py --passes 30
 """
@@ -12,6 +13,7 @@ wrapper around it. Prints a markdown table (docs/benchmarks.md#raw-packet-decodi
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
@@ -32,28 +34,30 @@ CAPTURES = (
 )
 
 
-def _time_source(path: Path, passes: int) -> tuple[int, float, int]:
-    """Scans per pass, seconds per scan (best of the passes' means) and points per scan."""
+def _time_source(path: Path, passes: int) -> tuple[int, float, float, int]:
+    """Scans per pass, wall and CPU seconds per scan (best pass) and points per scan."""
     with PacketScanSource(path, Config(), quiet=True) as source:
-        best = float("inf")
+        best_wall = best_cpu = float("inf")
         n_scans = n_points = 0
         for _ in range(passes):
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             scans = [scan for _index, scan in source.scans()]
-            elapsed = time.perf_counter() - t0
+            wall, cpu = time.perf_counter() - t0, time.process_time() - c0
             n_scans, n_points = len(scans), sum(len(s) for s in scans)
-            best = min(best, elapsed / max(n_scans, 1))
-    return n_scans, best, n_points // max(n_scans, 1)
+            best_wall = min(best_wall, wall / max(n_scans, 1))
+            best_cpu = min(best_cpu, cpu / max(n_scans, 1))
+    return n_scans, best_wall, best_cpu, n_points // max(n_scans, 1)
 
 
 def _time_velodyne_decoder(path: Path, passes: int) -> float:
+    """CPU seconds per scan of velodyne-decoder's own pcap reader (best pass)."""
     import velodyne_decoder as vd
 
     best = float("inf")
     for _ in range(passes):
-        t0 = time.perf_counter()
+        c0 = time.process_time()
         n = sum(1 for _stamp, _points in vd.read_pcap(str(path), vd.Config(), as_pcl_structs=True))
-        best = min(best, (time.perf_counter() - t0) / n)
+        best = min(best, (time.process_time() - c0) / n)
     return best
 
 
@@ -61,15 +65,17 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--passes", type=int, default=30, help="passes over each capture (best one counts)")
     args = parser.parse_args(argv)
-    print("| capture | scans | points/scan | lidar3d scans/s | velodyne-decoder read_pcap scans/s |")
-    print("|---|---:|---:|---:|---:|")
+    print(f"load average before: {os.getloadavg()[0]:.1f} ({os.cpu_count()} cores)")
+    print("| capture | scans | points/scan | scans/s (wall) | scans per CPU s | read_pcap scans per CPU s |")
+    print("|---|---:|---:|---:|---:|---:|")
     for name, path in CAPTURES:
         if not path.exists():
             print(f"| {name} | absent: {path} | | | |")
             continue
-        n_scans, per_scan_s, points = _time_source(path, args.passes)
+        n_scans, wall_s, cpu_s, points = _time_source(path, args.passes)
         floor = f"{1.0 / _time_velodyne_decoder(path, args.passes):.0f}" if path.suffix == ".pcap" else "-"
-        print(f"| {name} | {n_scans} | {points} | {1.0 / per_scan_s:.0f} | {floor} |", flush=True)
+        print(f"| {name} | {n_scans} | {points} | {1.0 / wall_s:.0f} | {1.0 / cpu_s:.0f} | {floor} |", flush=True)
+    print(f"load average after: {os.getloadavg()[0]:.1f}")
     return 0
 
 

@@ -156,19 +156,15 @@ class PacketDecoder:
             raise PacketError(f"velodyne-decoder cannot decode the sweep: {err}") from err
         if self._flag is not None:
             cloud = cloud[(cloud[:, _COLUMN_RETURN_TYPE].astype(np.uint8) & self._flag) != 0]
-        values = cloud.astype(np.float64)
-        points = values[:, :3]
-        n_input = len(points)
-        near = np.einsum("ij,ij->i", points, points) < self.min_range_m * self.min_range_m
-        n_near = int(np.count_nonzero(near))
+        n_input = len(cloud)
+        points = cloud[:, :3].astype(np.float64)
+        intensity = cloud[:, _COLUMN_INTENSITY]
+        ring = cloud[:, _COLUMN_RING].astype(np.uint16)
+        time_s = cloud[:, _COLUMN_TIME].astype(np.float64)
+        far = np.einsum("ij,ij->i", points, points) >= self.min_range_m * self.min_range_m
+        n_near = n_input - int(np.count_nonzero(far))
         if n_near:
-            values = values[~near]
-        scan = Scan(
-            stamp_ns=self.stamp_ns(packets[0]),
-            points=values[:, :3],
-            intensity=values[:, _COLUMN_INTENSITY],
-            ring=values[:, _COLUMN_RING].astype(np.uint16),
-            time_offset_s=values[:, _COLUMN_TIME],
-        )
+            points, intensity, ring, time_s = points[far], intensity[far], ring[far], time_s[far]
+        scan = Scan(self.stamp_ns(packets[0]), points, intensity, ring, time_s)
         sane, counts = sanitize_scan(scan, self.sensor)
         return sane, DecodeStats(n_input, n_near, TimeSource.RELATIVE), counts
