@@ -279,3 +279,15 @@ def test_unknown_topic_of_a_packet_bag_is_one_line(tmp_path):
         open_scan_source(bag, _config(topic="/nope")),
     ):
         pass
+
+
+def test_batch_finds_pcap_files_and_their_time_span(tmp_path):
+    from lidar3d.batch.discovery import discover_bags
+    from lidar3d.batch.span_match import bag_time_range
+
+    packets = vlp16_stream(2.2)
+    (tmp_path / "drives").mkdir()
+    pcap = write_pcap(tmp_path / "drives" / "a.pcap", packets)
+    (found,) = discover_bags([tmp_path / "drives"])
+    assert (found.path, found.kind, found.stem) == (pcap, "pcap", "a")
+    assert bag_time_range(pcap) == (packets[0][0], packets[-1][0] // 1000 * 1000)  # pcap: microseconds

@@ -162,7 +162,7 @@ def test_stationary_vlp16_pcap_stays_within_5_cm(tmp_path):
 @pytest.mark.xfail(
     strict=True,
     reason="the first registration at 1.28 m per sweep, with no motion prior yet, converges to a wrong "
-    "minimum (docs/stages/input.md#raw-packets); the decoded sweeps themselves register at the GPRMC speed",
+    "minimum (docs/stages/input.md, raw packets); the decoded sweeps themselves register at the GPRMC speed",
 )
 def test_moving_hdl32_run_travels_the_gprmc_distance(tmp_path):
     positions = _run(tmp_path, MOVING_HDL32, "hdl32e")
