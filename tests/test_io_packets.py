@@ -291,3 +291,22 @@ def test_batch_finds_pcap_files_and_their_time_span(tmp_path):
     (found,) = discover_bags([tmp_path / "drives"])
     assert (found.path, found.kind, found.stem) == (pcap, "pcap", "a")
     assert bag_time_range(pcap) == (packets[0][0], packets[-1][0] // 1000 * 1000)  # pcap: microseconds
+
+
+def test_damaged_record_length_stops_reading_with_a_note(tmp_path, caplog):
+    whole = write_pcap(tmp_path / "whole.pcap", vlp16_stream(3.5))
+    data = bytearray(whole.read_bytes())
+    record = 24 + 200 * (16 + 1248)  # the 201st record's header: declare 4 GiB
+    data[record + 8 : record + 12] = (0xFFFFFFFF).to_bytes(4, "little")
+    damaged = tmp_path / "damaged.pcap"
+    damaged.write_bytes(bytes(data))
+    with caplog.at_level(logging.WARNING, logger="lidar3d"):
+        _source, scans = _scans(damaged)
+    assert len(scans) == 2  # the sweeps finished before record 201
+    assert any("record 201 declares an impossible length" in r.getMessage() for r in caplog.records)
+
+
+def test_pcap_and_bag_together_is_one_line(tmp_path, pcap_35):
+    bag = write_packet_bag(tmp_path / "p.bag", vlp16_stream(2.0), storage="ros1")
+    with pytest.raises(PacketError, match="pcap files and bags cannot be read as one recording"):
+        _scans([pcap_35, bag])

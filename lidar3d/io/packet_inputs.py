@@ -143,6 +143,11 @@ class PcapPackets:
                     f"{self.path}: file cut short inside record {pcap.n_records + 1} "
                     f"({pcap.truncated_bytes} of {pcap.truncated_record_bytes} bytes): 1 packet lost"
                 )
+            if pcap.damaged_record:
+                counts.notes.append(
+                    f"{self.path}: record {pcap.damaged_record} declares an impossible length (damaged file); "
+                    "the records after it are not read"
+                )
             if pcap.n_snapped:
                 counts.notes.append(
                     f"{self.path}: {pcap.n_snapped} packets were captured shorter than sent (snap length)"

@@ -152,6 +152,14 @@ def _no_data_text(label: str, streams: Sequence[PcapPackets | BagPackets], topic
     )
 
 
+def _all_pcap(paths: Sequence[Path], label: str) -> bool:
+    """Whether every path is a pcap file (none: bags); raises on a mix of both."""
+    pcaps = [is_pcap(p) for p in paths]
+    if any(pcaps) and not all(pcaps):
+        raise PacketError(f"{label}: pcap files and bags cannot be read as one recording")
+    return all(pcaps)
+
+
 class PacketScanSource:
     """Scans from raw packets, lazily, in recording order (a context manager, as :class:`ScanSource`).
 
@@ -200,7 +208,7 @@ class PacketScanSource:
 
     def _open_streams(self) -> None:
         inputs = self.config.input
-        if all(is_pcap(p) for p in self.paths):
+        if _all_pcap(self.paths, self.label):
             self._streams = [PcapPackets(p, inputs.data_ports, inputs.position_ports) for p in self.paths]
             self._topic = "udp:" + ",".join(str(p) for p in inputs.data_ports)
             return

@@ -20,7 +20,7 @@ from typing import BinaryIO
 
 from lidar3d.errors import PacketError
 
-__all__ = ["PCAPNG_MAGIC", "PCAP_MAGICS", "PcapCounts", "PcapReader", "UdpDatagram", "is_pcap"]
+__all__ = ["MAX_RECORD_BYTES", "PCAPNG_MAGIC", "PCAP_MAGICS", "PcapCounts", "PcapReader", "UdpDatagram", "is_pcap"]
 
 #: First four bytes of a classic pcap file: microsecond or nanosecond time stamps, either byte order.
 PCAP_MAGICS = (b"\xd4\xc3\xb2\xa1", b"\xa1\xb2\xc3\xd4", b"\x4d\x3c\xb2\xa1", b"\xa1\xb2\x3c\x4d")
@@ -35,6 +35,8 @@ _LINK_SLL2 = 276
 _ETHERTYPE_IPV4 = 0x0800
 _ETHERTYPE_VLAN = (0x8100, 0x88A8)
 _UDP = 17
+#: A record longer than this (bytes) is damage, not a packet (libpcap's own limit is 256 KiB).
+MAX_RECORD_BYTES = 262_144
 
 
 def is_pcap(path: Path) -> bool:
@@ -68,7 +70,9 @@ class PcapCounts:
     """What walking a capture met (counts of records unless named otherwise); filled while reading.
 
     ``n_snapped`` records were captured shorter than sent (snap length); ``truncated_bytes`` is the
-    size of the record the file ends inside (0 when the file ends on a record boundary).
+    size of the record the file ends inside (0 when the file ends on a record boundary);
+    ``damaged_record`` the number of a record whose header declares an impossible length (reading
+    stops there; 0 when none).
     """
 
     n_records: int = 0
@@ -78,6 +82,7 @@ class PcapCounts:
     n_snapped: int = 0
     truncated_bytes: int = 0
     truncated_record_bytes: int = 0
+    damaged_record: int = 0
     ports: dict[tuple[int, int], list[int]] = field(default_factory=dict)
 
     def note_port(self, port: int, size: int) -> None:
@@ -165,6 +170,9 @@ class PcapReader:
                     counts.truncated_bytes, counts.truncated_record_bytes = len(head), 16
                 return
             sec, frac, caplen, origlen = self._record.unpack(head)
+            if caplen > MAX_RECORD_BYTES:
+                counts.damaged_record = counts.n_records + 1
+                return
             frame = read(caplen)
             if len(frame) < caplen:
                 counts.truncated_bytes, counts.truncated_record_bytes = 16 + len(frame), 16 + caplen
