@@ -35,6 +35,7 @@ _LINK_SLL2 = 276
 _ETHERTYPE_IPV4 = 0x0800
 _ETHERTYPE_VLAN = (0x8100, 0x88A8)
 _UDP = 17
+_UDP_HEADER = struct.Struct(">HHH")
 #: A record longer than this (bytes) is damage, not a packet (libpcap's own limit is 256 KiB).
 MAX_RECORD_BYTES = 262_144
 
@@ -83,21 +84,17 @@ class PcapCounts:
     truncated_bytes: int = 0
     truncated_record_bytes: int = 0
     damaged_record: int = 0
-    ports: dict[tuple[int, int], list[int]] = field(default_factory=dict)
+    ports: dict[tuple[int, int], int] = field(default_factory=dict)
 
     def note_port(self, port: int, size: int) -> None:
         """Count one datagram of ``size`` payload bytes to destination ``port`` (for the port census)."""
         key = (port, size)
-        entry = self.ports.get(key)
-        if entry is None:
-            self.ports[key] = [1]
-        else:
-            entry[0] += 1
+        self.ports[key] = self.ports.get(key, 0) + 1
 
     def port_census(self) -> list[tuple[int, int, tuple[int, ...]]]:
         """``(destination port, datagrams, payload sizes)`` per port, most datagrams first."""
         by_port: dict[int, tuple[int, set[int]]] = {}
-        for (port, size), (count,) in self.ports.items():
+        for (port, size), count in self.ports.items():
             total, sizes = by_port.get(port, (0, set()))
             sizes.add(size)
             by_port[port] = (total + count, sizes)
@@ -206,6 +203,17 @@ class PcapReader:
         return 0
 
     def _udp(self, frame: bytes, stamp_ns: int) -> UdpDatagram | None:
+        # the common case first: untagged Ethernet, IPv4, UDP, not a fragment (DF allowed)
+        if (
+            self.link_type == _LINK_ETHERNET
+            and len(frame) >= 42
+            and frame[12:14] == b"\x08\x00"
+            and frame[23] == _UDP
+            and not (frame[20] & 0x3F or frame[21])
+            and len(frame) >= (udp := 14 + (frame[14] & 0x0F) * 4) + 8
+        ):
+            src, dst, length = _UDP_HEADER.unpack_from(frame, udp)
+            return UdpDatagram(stamp_ns, src, dst, frame[udp + 8 : udp + max(length, 8)])
         ip = self._ip_offset(frame)
         if ip < 0 or len(frame) < ip + 20 or frame[ip] >> 4 != 4 or frame[ip + 9] != _UDP:
             return None
