@@ -136,12 +136,23 @@ def test_product_byte_that_disagrees_with_the_firing_pattern_is_warned(tmp_path,
     assert config.sensor.model == "vlp16"
 
 
-def test_unknown_model_is_one_line_and_sensor_overrides(tmp_path):
-    pcap = write_pcap(tmp_path / "odd.pcap", vlp16_stream(2.2, product=0x99, period_scale=1.5))
-    with pytest.raises(PacketError, match=r"odd.pcap: unknown Velodyne model: product byte 0x99, .*--sensor"):
-        _scans(pcap)
-    source, scans = _scans(pcap, config_with(Config(), {"input": {"packet_model": "vlp16"}}))
+@pytest.mark.parametrize("container", ["pcap", "ros2 bag"])
+def test_unknown_model_is_one_line_and_sensor_overrides(tmp_path, container, capsys):
+    packets = vlp16_stream(2.2, product=0x99, period_scale=1.5)
+    if container == "pcap":
+        path = write_pcap(tmp_path / "odd.pcap", packets)
+    else:
+        path = write_packet_bag(tmp_path / "odd", packets, storage="ros2")
+    with pytest.raises(
+        PacketError,
+        match=r"odd(.pcap)?: unknown Velodyne model: product byte 0x99, return byte 0x37, packets every 1991.0 us "
+        r"\(no model fits\); give the model with --sensor \(vlp16, vlp32c, hdl32e\)$",
+    ):
+        _scans(path)
+    source, scans = _scans(path, config_with(Config(), {"input": {"packet_model": "vlp16"}}))
     assert source.sensor.detection.how == "given" and len(scans) >= 1
+    assert main(["info", str(path)]) == 1
+    assert capsys.readouterr().err.startswith(f"lidar3d info: error: {path}: unknown Velodyne model")
 
 
 def test_pcap_without_velodyne_data_names_its_ports(tmp_path):
@@ -310,3 +321,37 @@ def test_pcap_and_bag_together_is_one_line(tmp_path, pcap_35):
     bag = write_packet_bag(tmp_path / "p.bag", vlp16_stream(2.0), storage="ros1")
     with pytest.raises(PacketError, match="pcap files and bags cannot be read as one recording"):
         _scans([pcap_35, bag])
+
+
+def test_pcap_reader_survives_garbage_frames(tmp_path):
+    import struct
+
+    rng = np.random.default_rng(0)
+    frames = [bytes(rng.integers(0, 256, size=int(n), dtype=np.uint8)) for n in rng.integers(0, 120, size=300)]
+    out = bytearray(struct.pack("<IHHiIII", 0xA1B2C3D4, 2, 4, 0, 0, 65535, 1))
+    for index, frame in enumerate(frames):
+        out += struct.pack("<IIII", 1_700_000_000, index, len(frame), len(frame)) + frame
+    path = tmp_path / "garbage.pcap"
+    path.write_bytes(bytes(out))
+    with PcapReader(path) as reader:
+        datagrams = list(reader)
+    assert reader.counts.n_records == 300 and reader.counts.n_udp == len(datagrams)
+    with pytest.raises(PacketError, match="no Velodyne data packets"):
+        _scans(path)
+
+
+def test_linux_cooked_capture_is_read(tmp_path):
+    import struct
+
+    ethernet = write_pcap(tmp_path / "eth.pcap", vlp16_stream(2.2)).read_bytes()
+    out = bytearray(ethernet[:20] + struct.pack("<I", 113))  # LINKTYPE_LINUX_SLL
+    offset = 24
+    while offset < len(ethernet):
+        sec, usec, caplen, _origlen = struct.unpack_from("<IIII", ethernet, offset)
+        frame = ethernet[offset + 16 : offset + 16 + caplen]
+        cooked = bytes(14) + b"\x08\x00" + frame[14:]  # 16-byte SLL header, protocol IPv4
+        out += struct.pack("<IIII", sec, usec, len(cooked), len(cooked)) + cooked
+        offset += 16 + caplen
+    sll = tmp_path / "sll.pcap"
+    sll.write_bytes(bytes(out))
+    assert len(_scans(sll)[1]) == len(_scans(tmp_path / "eth.pcap")[1]) == 2
