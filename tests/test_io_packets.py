@@ -125,6 +125,19 @@ def _rewrite_time(packet: bytes, sensor_ns: int) -> bytes:
     return packet[:1200] + ((sensor_ns % HOUR_NS) // 1000).to_bytes(4, "little") + packet[1204:]
 
 
+def test_a_faster_turn_sets_the_rate_and_scales_the_columns(tmp_path):
+    pcap = write_pcap(tmp_path / "fast.pcap", vlp16_stream(3.5, rpm=900.0))
+    config = input_config(pcap, Config())
+    assert (config.sensor.model, config.sensor.rotation_override_hz, config.sensor.n_columns_override) == (
+        "vlp16",
+        15.0,
+        1200,  # 1800 columns at 10 Hz: the firing rate is fixed, so 1200 firings per turn at 15 Hz
+    )
+    kept = input_config(pcap, config_with(Config(), {"sensor": {"n_columns_override": 1000}}))
+    assert kept.sensor.n_columns_override == 1000
+    assert input_config(write_pcap(tmp_path / "600.pcap", vlp16_stream(2.2)), Config()) == Config()
+
+
 def test_product_byte_that_disagrees_with_the_firing_pattern_is_warned(tmp_path, caplog):
     pcap = write_pcap(tmp_path / "says_hdl32.pcap", vlp16_stream(2.2, product=0x21))
     with caplog.at_level(logging.WARNING, logger="lidar3d"):

@@ -78,23 +78,30 @@ class PacketSensor:
         return model
 
     def sensor_model(self) -> SensorModel:
-        """The detected model's geometry, with the measured rotation rate when it is off the preset's."""
+        """The detected model's geometry; when the measured rotation rate is off the preset's, with that
+        rate and the range-image columns scaled to it (the firing rate is fixed, so a faster turn fires
+        fewer times per sweep: columns = preset columns x preset rate / rate)."""
         base = SENSOR_MODELS[self.model.value]
         hz = self.rpm / 60.0
         if hz > 0 and abs(hz / base.rotation_hz - 1.0) > _RATE_TOLERANCE:
-            return dataclasses.replace(base, rotation_hz=round(hz, 3))
+            columns = round(base.n_columns * base.rotation_hz / hz)
+            return dataclasses.replace(base, rotation_hz=round(hz, 3), n_columns=columns)
         return base
 
     def pipeline_config(self, config: Any) -> Any:
-        """``config`` with ``sensor.model`` of the packets (and their rotation rate, when it is off the
-        preset's and ``sensor.rotation_override_hz`` is not set), for the pipeline."""
+        """``config`` with ``sensor.model`` of the packets and, when their rotation rate is off the
+        preset's (:meth:`sensor_model`) and ``sensor.rotation_override_hz`` is not set, that rate and
+        its columns (unless ``sensor.n_columns_override`` is set), for the pipeline."""
         model = self.sensor_model()
         sensor = config.sensor
-        rate = sensor.rotation_override_hz
-        if not rate and model.rotation_hz != SENSOR_MODELS[model.name].rotation_hz:
+        preset = SENSOR_MODELS[model.name]
+        rate, columns = sensor.rotation_override_hz, sensor.n_columns_override
+        if not rate and model.rotation_hz != preset.rotation_hz:
             rate = model.rotation_hz
+            columns = columns or model.n_columns
         return dataclasses.replace(
-            config, sensor=dataclasses.replace(sensor, model=model.name, rotation_override_hz=rate)
+            config,
+            sensor=dataclasses.replace(sensor, model=model.name, rotation_override_hz=rate, n_columns_override=columns),
         )
 
 
