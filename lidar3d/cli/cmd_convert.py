@@ -17,8 +17,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description=(
             "Decode every sweep of INPUT as 'lidar3d run' does and write it as sensor_msgs/PointCloud2 in the "
             "velodyne_pointcloud layout (x y z intensity ring time; time in seconds from the header stamp, "
-            "which is the sweep start). INPUT: pcap file(s), a bag with a velodyne_msgs/VelodyneScan topic, "
-            "or any PointCloud2 bag (rewritten in that layout)."
+            "which for raw packets is the sweep start). INPUT: pcap file(s), a bag with a "
+            "velodyne_msgs/VelodyneScan topic, or any PointCloud2 bag (rewritten in that layout, stamps kept)."
         ),
         epilog=(
             "examples:\n"
