@@ -217,13 +217,43 @@ class SensorConfig:
 
 @dataclass(frozen=True, slots=True)
 class InputConfig:
-    """How scans are read from bags."""
+    """How scans are read from bags, pcap files and raw packets."""
 
     topic: str = _key("", None, "PointCloud2 topic; empty: auto-detect the only one")
     azimuth_stamp: str = _key(
         "sweep_start",
         Choices(("sweep_start", "sweep_end")),
         "what the header stamp marks in clouds whose point times come from the azimuth (no usable time field)",
+    )
+    packet_model: str = _key(
+        "auto",
+        Choices(("auto", *SENSOR_MODELS)),
+        "raw packets: the model decoded as; auto: from the firing pattern and factory bytes (--sensor)",
+    )
+    packet_return: str = _key(
+        "strongest",
+        Choices(("strongest", "last", "both")),
+        "raw packets in dual-return mode: the return kept (both: every return); single-return data keeps all",
+    )
+    packet_clock: str = _key(
+        "host",
+        Choices(("host", "sensor")),
+        "raw packets: stamps from the host capture clock or the sensor's own (top-of-hour, PPS) clock",
+    )
+    calibration: str = _key(
+        "", None, "raw packets: velodyne_pointcloud calibration YAML; empty: the model's built-in table"
+    )
+    cut_azimuth_deg: float = _key(
+        0.0, Range(0.0, 360.0, high_open=True, unit="deg"), "raw packets: a sweep starts where the azimuth passes this"
+    )
+    recut_sweeps: bool = _key(
+        False, None, "packet bags: cut sweeps at cut_azimuth_deg (false: one sweep per VelodyneScan message)"
+    )
+    data_ports: tuple[int, ...] = _key(
+        (2368,), ListRange(_closed(1, 65535), 1, 64), "pcap: UDP destination ports of data packets"
+    )
+    position_ports: tuple[int, ...] = _key(
+        (8308,), ListRange(_closed(1, 65535), 0, 64), "pcap: UDP destination ports of position (NMEA) packets"
     )
 
 

@@ -12,6 +12,7 @@ __all__ = [
     "GnssError",
     "Lidar3dError",
     "OutputError",
+    "PacketError",
     "PointCloudError",
     "RegistrationError",
     "SimulationError",
@@ -33,6 +34,10 @@ class ConfigError(Lidar3dError):
 
 class PointCloudError(Lidar3dError):
     """A PointCloud2 message cannot be decoded."""
+
+
+class PacketError(Lidar3dError):
+    """Raw Velodyne packets (a pcap file, a VelodyneScan topic) cannot be read or decoded."""
 
 
 class GnssError(Lidar3dError):

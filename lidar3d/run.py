@@ -14,7 +14,8 @@ Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
   the folder too);
 * ``config.toml``: the resolved configuration; ``eval/``: the GNSS report when a SPAN log is given.
 
-Every pose is the lidar pose at the scan's header stamp (sweep start for the velodyne driver).
+Every pose is the lidar pose at the scan's header stamp, whatever instant it marks (the sweep start
+for raw packets and the simulator, the sweep end for the stock ROS1 velodyne driver's clouds).
 While running, trajectories and the summary are checkpointed every ``checkpoint_every_s`` and the
 map every ``map_checkpoint_every_s``; an interruption or crash publishes everything finished so
 far, marked ``"partial": true``. Each publication replaces the whole set in the folder
@@ -40,6 +41,7 @@ from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import ConfigError, Lidar3dError, OutputError
 from lidar3d.io.atomic import write_text_atomic
 from lidar3d.io.health_csv import write_health_csv
+from lidar3d.io.packet_source import input_config
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.run_folder import existing_run_outputs, publish_set
 from lidar3d.io.scan_source import open_scan_source
@@ -101,7 +103,7 @@ def _summary(
         loop_ms_total=round(result.loop_ms_total, 1),
         counts=RunCounts(**result.counts),
         warnings=(*result.warnings, *_input_warnings(input_stats)),
-        pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
+        pose_stamp="header stamp of each scan, whatever instant it marks (sweep start for raw packets)",
         health=result.health_summary,
         input_stats=input_stats,
         map_rebuild_s=map_rebuild_s,
@@ -251,6 +253,7 @@ def run_bag(
     if gnss_factors and span_log is None:
         raise ConfigError("--gnss-factors needs --span (the log to fuse)")
     _check_output_folder(out, overwrite)
+    config = input_config(paths, config)  # raw packets: the sensor model and rate they show
 
     pipeline = SlamPipeline(config)
     publisher = _RunPublisher(out, config)

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from lidar3d.cli.packet_options import add_packet_arguments, apply_packet_arguments
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -26,7 +28,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s) or ROS2 bag folder")
+    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s), ROS2 bag folder, or pcap file(s)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one)")
     parser.add_argument("--config", metavar="FILE", help="TOML configuration (see 'lidar3d config')")
@@ -50,6 +52,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--overwrite", action="store_true", help="replace the outputs of an earlier run in DIR (else refused)"
     )
+    add_packet_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -61,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
     from lidar3d.errors import ConfigError
     from lidar3d.run import run_bag
 
-    config = load_config(args.config)
+    config = apply_packet_arguments(load_config(args.config), args)
     if args.topic:
         config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
     if args.no_loop:
