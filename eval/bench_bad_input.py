@@ -6,6 +6,11 @@ all-zero times, absolute float64 seconds / float64 and uint64 nanoseconds, float
 seconds since boot) and prints the ATE RMSE of ``lidar3d run --no-loop`` on each against the
 simulator's ground truth (or the one-line error).
 
+``stamps``: simulates one drive (stamps at the sweep start, times 0..T), rewrites the same points
+with each header stamp moved to the sweep end (stamp + T, times -T..0, as the stock ROS velodyne
+driver stamps) and prints the ATE RMSE and maximum of ``lidar3d run --no-loop`` on both, each
+against the ground truth at its own stamps (interpolated).
+
 ``stop``: simulates the ``stops`` scenario with its first stop held for ``--hold`` seconds, runs
 ``lidar3d.run.run_bag`` on it and prints the drift while standing, the keyframes added, the wall
 seconds per stationary and per moving scan and the peak memory.
@@ -13,6 +18,7 @@ seconds per stationary and per moving scan and the peak memory.
 Everything is written into a temporary folder (deleted afterwards, never committed). Usage::
 
     .venv/bin/python eval/bench_bad_input.py layouts --scenario loop --duration 25
+    .venv/bin/python eval/bench_bad_input.py stamps --scenario loop --duration 20
     .venv/bin/python eval/bench_bad_input.py stop --hold 180
 """
 
@@ -35,7 +41,7 @@ if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
 
 from lidar3d.cli.main import main as cli_main  # noqa: E402
-from lidar3d.io.bag_writer import write_cloud_bag  # noqa: E402
+from lidar3d.io.bag_writer import write_cloud_bag, write_scan_bag  # noqa: E402
 from lidar3d.io.pointcloud2 import PointCloud2Parts, encode_fields  # noqa: E402
 from lidar3d.io.scan_source import ScanSource  # noqa: E402
 from lidar3d.io.trajectory_io import read_tum  # noqa: E402
@@ -106,6 +112,33 @@ def layouts(args: argparse.Namespace, work: Path) -> None:
             print(f"| {stamp.value} | {name} | {ate} |", flush=True)
 
 
+def stamps(args: argparse.Namespace, work: Path) -> None:
+    from lidar3d import sim
+
+    simulation = sim.Simulation(args.scenario, seed=args.seed, duration_s=args.duration)
+    outputs = sim.write_simulation(simulation, work / "drive")
+    with ScanSource(outputs.bag) as source:
+        scans = list(source)
+    period_s = float(np.median(np.diff([s.stamp_ns for s in scans]))) * 1e-9
+    end_bag = work / "sweep_end.bag"
+    shift_ns = round(period_s * 1e9)
+    write_scan_bag(
+        end_bag,
+        (Scan(s.stamp_ns + shift_ns, s.points, s.intensity, s.ring, s.time_offset_s - shift_ns * 1e-9) for s in scans),
+    )
+    print("| stamps | ATE RMSE | ATE max |\n|---|---:|---:|")
+    for name, bag in (("sweep start, times 0..T", outputs.bag), ("sweep end, times -T..0", end_bag)):
+        out = work / f"run_{bag.stem}"
+        if cli_main(["-q", "run", str(bag), "--out", str(out), "--no-loop"]) != 0:
+            print(f"| {name} | error | |")
+            continue
+        ate = evaluate_trajectory(read_tum(out / "trajectory_tum.txt"), read_tum(outputs.ground_truth)).ate
+        print(
+            f"| {name} | {ate.translation_3d_m.rmse * 1e3:.1f} mm | {ate.translation_3d_m.max * 1e3:.1f} mm |",
+            flush=True,
+        )
+
+
 def stop(args: argparse.Namespace, work: Path) -> None:
     from lidar3d import sim
     from lidar3d.run import run_bag
@@ -155,13 +188,17 @@ def main(argv: list[str] | None = None) -> int:
     lay.add_argument("--scenario", default="loop")
     lay.add_argument("--duration", type=float, default=25.0)
     lay.add_argument("--seed", type=int, default=0)
+    stm = sub.add_parser("stamps", help="ATE with sweep-start and sweep-end stamps of the same points")
+    stm.add_argument("--scenario", default="loop")
+    stm.add_argument("--duration", type=float, default=20.0)
+    stm.add_argument("--seed", type=int, default=0)
     stp = sub.add_parser("stop", help="drift and cost of a long stop")
     stp.add_argument("--hold", type=float, default=180.0, help="seconds standing still")
     stp.add_argument("--after", type=float, default=5.0, help="seconds of driving after the stop")
     stp.add_argument("--seed", type=int, default=0)
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="bench_bad_input_") as tmp:
-        (layouts if args.what == "layouts" else stop)(args, Path(tmp))
+        {"layouts": layouts, "stamps": stamps, "stop": stop}[args.what](args, Path(tmp))
     return 0
 
 

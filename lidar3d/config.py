@@ -31,6 +31,7 @@ __all__ = [
     "Choices",
     "Config",
     "FeatureConfig",
+    "GeorefConfig",
     "GnssConfig",
     "HealthConfig",
     "InputConfig",
@@ -216,13 +217,43 @@ class SensorConfig:
 
 @dataclass(frozen=True, slots=True)
 class InputConfig:
-    """How scans are read from bags."""
+    """How scans are read from bags, pcap files and raw packets."""
 
     topic: str = _key("", None, "PointCloud2 topic; empty: auto-detect the only one")
     azimuth_stamp: str = _key(
         "sweep_start",
         Choices(("sweep_start", "sweep_end")),
         "what the header stamp marks in clouds whose point times come from the azimuth (no usable time field)",
+    )
+    packet_model: str = _key(
+        "auto",
+        Choices(("auto", *SENSOR_MODELS)),
+        "raw packets: the model decoded as; auto: from the firing pattern and factory bytes (--sensor)",
+    )
+    packet_return: str = _key(
+        "strongest",
+        Choices(("strongest", "last", "both")),
+        "raw packets in dual-return mode: the return kept (both: every return); single-return data keeps all",
+    )
+    packet_clock: str = _key(
+        "host",
+        Choices(("host", "sensor")),
+        "raw packets: stamps from the host capture clock or the sensor's own (top-of-hour, PPS) clock",
+    )
+    calibration: str = _key(
+        "", None, "raw packets: velodyne_pointcloud calibration YAML; empty: the model's built-in table"
+    )
+    cut_azimuth_deg: float = _key(
+        0.0, Range(0.0, 360.0, high_open=True, unit="deg"), "raw packets: a sweep starts where the azimuth passes this"
+    )
+    recut_sweeps: bool = _key(
+        False, None, "packet bags: cut sweeps at cut_azimuth_deg (false: one sweep per VelodyneScan message)"
+    )
+    data_ports: tuple[int, ...] = _key(
+        (2368,), ListRange(_closed(1, 65535), 1, 64), "pcap: UDP destination ports of data packets"
+    )
+    position_ports: tuple[int, ...] = _key(
+        (8308,), ListRange(_closed(1, 65535), 0, 64), "pcap: UDP destination ports of position (NMEA) packets"
     )
 
 
@@ -426,6 +457,42 @@ class GnssConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class GeorefConfig:
+    """Georeference of a run and the optional GNSS position factors (lidar3d.georef; docs/georeference.md)."""
+
+    method: str = _key(
+        "yaw", Choices(("yaw", "se3")), "SLAM -> ENU fit: yaw (roll/pitch from the INS attitude) or se3 (positions)"
+    )
+    max_fit_residual_m: float = _key(
+        5.0, _positive(1e6, "m"), "fit epochs whose residual exceeds this and 5x the median are dropped (jumps)"
+    )
+    factor_max_std_m: float = _key(
+        1.0, _positive(1000.0, "m"), "GNSS epochs reporting a horizontal std above this are not fused"
+    )
+    factor_std_floor_m: float = _key(0.05, _positive(100.0, "m"), "a fused epoch's std is at least this")
+    factor_spacing_m: float = _key(
+        2.0, _closed(0.0, 1e4, "m"), "fused epochs at least this far apart along the path (LIO-SAM: 5)"
+    )
+    factor_max_gap_s: float = _key(0.2, _positive(60.0, "s"), "longest INS interval interpolated to a keyframe stamp")
+    gate_floor_m: float = _key(1.0, _positive(1e4, "m"), "consistency gate: allowed disagreement with the odometry")
+    gate_sigmas: float = _key(4.0, _positive(100.0), "... plus this many combined GNSS stds")
+    gate_drift_fraction: float = _key(
+        0.25, _closed(0.0, 10.0), "... plus this fraction of the path between the two epochs (lidar drift)"
+    )
+    gate_reanchor_gap_m: float = _key(
+        20.0, _positive(1e6, "m"), "after this much path without a GNSS candidate, a confirmed epoch re-anchors"
+    )
+    odometry_sigma_m: float = _key(0.02, _positive(100.0, "m"), "keyframe-to-keyframe odometry factor std")
+    odometry_sigma_fraction: float = _key(
+        0.02, _closed(0.0, 1.0), "... plus this fraction of the keyframe step (drift per metre)"
+    )
+    odometry_sigma_rad: float = _key(0.002, _positive(1.0, "rad"), "odometry factor rotation std")
+    hold_out_period_s: float = _key(
+        0.0, _closed(0.0, 3600.0, "s"), "fuse only even periods of this length, so eval can score the odd ones (0: all)"
+    )
+
+
+@dataclass(frozen=True, slots=True)
 class LoopConfig:
     """Loop closure and pose graph (lidar3d.loop). Sources: LeGO-LOAM/LIO-SAM mapOptmization,
     hdl_graph_slam loop_detector, KISS-SLAM loop_closer (shared/reference/lego-loam-and-peers.md)."""
@@ -537,6 +604,7 @@ class Config:
     health: HealthConfig = field(default_factory=HealthConfig)
     loop: LoopConfig = field(default_factory=LoopConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
+    georef: GeorefConfig = field(default_factory=GeorefConfig)
 
 
 def key_specs() -> Iterator[tuple[str, tuple[KeySpec, ...]]]:

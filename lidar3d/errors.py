@@ -8,9 +8,11 @@ exception keeps its traceback because it is a bug.
 __all__ = [
     "BagError",
     "ConfigError",
+    "GeoreferenceError",
     "GnssError",
     "Lidar3dError",
     "OutputError",
+    "PacketError",
     "PointCloudError",
     "RegistrationError",
     "SimulationError",
@@ -34,8 +36,16 @@ class PointCloudError(Lidar3dError):
     """A PointCloud2 message cannot be decoded."""
 
 
+class PacketError(Lidar3dError):
+    """Raw Velodyne packets (a pcap file, a VelodyneScan topic) cannot be read or decoded."""
+
+
 class GnssError(Lidar3dError):
     """A GNSS/INS log cannot be read or has no usable solution."""
+
+
+class GeoreferenceError(Lidar3dError):
+    """A run has no usable georeference, or a coordinate reference system cannot be used for an export."""
 
 
 class RegistrationError(Lidar3dError):

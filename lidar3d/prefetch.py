@@ -20,7 +20,8 @@ from pathlib import Path
 from lidar3d.config import Config
 from lidar3d.errors import Lidar3dError
 from lidar3d.features.frontend import PreparedScan, prepare_scan
-from lidar3d.io.scan_source import ReadStats, open_scan_source
+from lidar3d.io.scan_reading import ReadStats
+from lidar3d.io.scan_source import open_scan_source
 
 __all__ = ["InlineScanStream", "PreparedScanStream", "open_prepared_scans"]
 

@@ -25,8 +25,9 @@ class Scan:
     """One sweep of the lidar.
 
     Attributes:
-        stamp_ns: header stamp of the sweep in integer nanoseconds (for the velodyne driver and our
-            simulator: the time of the first firing, i.e. the sweep start).
+        stamp_ns: header stamp of the sweep in integer nanoseconds, whatever instant it marks (the
+            first firing for lidar3d's packet decoder and simulator; the last packet for the stock
+            ROS1 velodyne driver); the scan's pose is the lidar pose at this stamp.
         points: (N, 3) float64, metres, lidar frame.
         intensity: (N,) float32, sensor units (0-255 for Velodyne).
         ring: (N,) uint16, laser index ordered by elevation, 0 = lowest beam.

@@ -14,7 +14,8 @@ Library twin of the CLI: :func:`run_bag`. Outputs in ``out_dir``:
   the folder too);
 * ``config.toml``: the resolved configuration; ``eval/``: the GNSS report when a SPAN log is given.
 
-Every pose is the lidar pose at the scan's header stamp (sweep start for the velodyne driver).
+Every pose is the lidar pose at the scan's header stamp, whatever instant it marks (the sweep start
+for raw packets and the simulator, the sweep end for the stock ROS1 velodyne driver's clouds).
 While running, trajectories and the summary are checkpointed every ``checkpoint_every_s`` and the
 map every ``map_checkpoint_every_s``; an interruption or crash publishes everything finished so
 far, marked ``"partial": true``. Each publication replaces the whole set in the folder
@@ -31,14 +32,16 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from lidar3d import __version__
 from lidar3d.config import Config, config_to_toml
-from lidar3d.errors import Lidar3dError, OutputError
+from lidar3d.errors import ConfigError, Lidar3dError, OutputError
 from lidar3d.io.atomic import write_text_atomic
 from lidar3d.io.health_csv import write_health_csv
+from lidar3d.io.packet_source import input_config
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.run_folder import existing_run_outputs, publish_set
 from lidar3d.io.scan_source import open_scan_source
@@ -46,7 +49,13 @@ from lidar3d.io.trajectory_io import write_kitti, write_tum
 from lidar3d.mapping.health import ScanHealth
 from lidar3d.pipeline import SlamPipeline, SlamResult
 from lidar3d.prefetch import open_prepared_scans
+from lidar3d.records import Trajectory
 from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
+
+if TYPE_CHECKING:
+    from lidar3d.georef.georeference import Georeference, GnssFusionRecord
+    from lidar3d.gnss.novatel import SpanLog
+    from lidar3d.gnss.reference import InsReference
 
 __all__ = ["RunOutcome", "run_bag"]
 
@@ -94,7 +103,7 @@ def _summary(
         loop_ms_total=round(result.loop_ms_total, 1),
         counts=RunCounts(**result.counts),
         warnings=(*result.warnings, *_input_warnings(input_stats)),
-        pose_stamp="header stamp of each scan (sweep start for the velodyne driver)",
+        pose_stamp="header stamp of each scan, whatever instant it marks (sweep start for raw packets)",
         health=result.health_summary,
         input_stats=input_stats,
         map_rebuild_s=map_rebuild_s,
@@ -121,8 +130,11 @@ class _RunPublisher:
         self.config = config
         self.summary: RunSummary | None = None  # the summary of the set in the folder
 
-    def publish(self, result: SlamResult, summary: RunSummary, *, with_map: bool = True) -> RunSummary:
-        """Publish trajectories, the loop outputs, (optionally) the map, and the summary as one set."""
+    def publish(
+        self, result: SlamResult, summary: RunSummary, *, with_map: bool = True, lidar_only: Trajectory | None = None
+    ) -> RunSummary:
+        """Publish trajectories, the loop outputs, (optionally) the map, and the summary as one set;
+        ``lidar_only``: the trajectory before the GNSS factors (``trajectory_lidar_only_tum.txt``)."""
         n, map_points = len(result.trajectory), len(result.map_points)
         rows = dict.fromkeys(
             (
@@ -135,6 +147,8 @@ class _RunPublisher:
             n,
         )
         rows.update({"keyframes_tum.txt": len(result.keyframes), "loops.csv": len(result.loop_candidates)})
+        if lidar_only is not None:
+            rows["trajectory_lidar_only_tum.txt"] = len(lidar_only)
         keep = [] if self.summary is None else ["config.toml"]
         if with_map:
             rows["map.pcd"] = map_points
@@ -152,6 +166,8 @@ class _RunPublisher:
             write_tum(staging / "odometry_tum.txt", result.odometry)
             write_tum(staging / "keyframes_tum.txt", result.keyframes)
             write_health_csv(staging / "health.csv", result.scan_indices, result.health)
+            if lidar_only is not None:
+                write_tum(staging / "trajectory_lidar_only_tum.txt", lidar_only)
             if with_map:
                 intensity = result.map_intensity.astype(np.float32)
                 write_pcd(staging / "map.pcd", result.map_points, intensity=intensity)
@@ -161,15 +177,18 @@ class _RunPublisher:
         self.summary = publish_set(self.out_dir, summary, write, rows=rows, keep=keep)
         return self.summary
 
-    def publish_evaluation(self, evaluation, summary: RunSummary) -> RunSummary:
-        """Add the evaluation report (``eval/``) to the published set, with ``summary``."""
+    def publish_evaluation(self, evaluation, georef: Georeference, summary: RunSummary) -> RunSummary:
+        """Add the evaluation report (``eval/``) and ``georef.json`` to the published set, with ``summary``."""
         from lidar3d.export.span_report import write_span_report
 
         assert self.summary is not None, "the run's outputs are published before its evaluation"
-        keep = [entry.path for entry in self.summary.outputs if not entry.path.startswith("eval/")]
-        self.summary = publish_set(
-            self.out_dir, summary, lambda staging: write_span_report(evaluation, staging / "eval"), keep=keep
-        )
+        keep = [e.path for e in self.summary.outputs if not e.path.startswith("eval/") and e.path != "georef.json"]
+
+        def write(staging: Path) -> None:
+            write_text_atomic(staging / "georef.json", georef.to_json())
+            write_span_report(evaluation, staging / "eval")
+
+        self.summary = publish_set(self.out_dir, summary, write, keep=keep)
         return self.summary
 
 
@@ -202,6 +221,7 @@ def run_bag(
     map_checkpoint_every_s: float = 60.0,
     prefetch: bool = True,
     overwrite: bool = False,
+    gnss_factors: bool = False,
 ) -> RunOutcome:
     """Run SLAM over the bag(s) ``paths`` and write every output into ``out_dir``.
 
@@ -215,6 +235,11 @@ def run_bag(
             (uses a second core; turn off when several runs share the cores, as in a batch).
         overwrite: replace the outputs of an earlier run in ``out_dir`` (they stay until this run
             publishes its first set, which removes every file it does not hold).
+        gnss_factors: fuse the SPAN log's good epochs into the keyframe graph after the lidar run
+            (:mod:`lidar3d.georef.gnss_factors`); the lidar-only trajectory is kept as
+            ``trajectory_lidar_only_tum.txt``. Needs ``span_log``.
+
+    With ``span_log``, ``georef.json`` holds the georeference (:mod:`lidar3d.georef.georeference`).
 
     Raises:
         OutputError: ``out_dir`` already holds the outputs of a run and ``overwrite`` is false.
@@ -225,7 +250,10 @@ def run_bag(
     inputs = [str(p) for p in paths]
     # Check the evaluation inputs and the output folder now, not after a run of hours.
     T_imu_lidar = _check_evaluation_inputs(span_log, extrinsics)
+    if gnss_factors and span_log is None:
+        raise ConfigError("--gnss-factors needs --span (the log to fuse)")
     _check_output_folder(out, overwrite)
+    config = input_config(paths, config)  # raw packets: the sensor model and rate they show
 
     pipeline = SlamPipeline(config)
     publisher = _RunPublisher(out, config)
@@ -302,9 +330,36 @@ def run_bag(
                 log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
 
     if span_log is not None:
-        evaluation, record = _evaluate(result, span_log, T_imu_lidar, config, out)
+        span = _SpanInputs.read(span_log, T_imu_lidar, config)
+        fusion = None
+        if gnss_factors and finished:
+            lidar_only = result.trajectory
+            result, fusion = _fuse_gnss(result, span, config, paths, start, done)
+            summary = _summary(
+                result,
+                inputs=inputs,
+                topic=topic,
+                runtime_s=time.perf_counter() - t_start,
+                read_ms=read_ms,
+                input_stats=input_stats,
+                map_rebuild_s=map_rebuild_s,
+            )
+            if fusion.rejected_consistency:
+                line = (
+                    f"GNSS factors: {fusion.rejected_consistency} epoch(s) rejected as inconsistent with the odometry"
+                )
+                summary = dataclasses.replace(summary, warnings=(*summary.warnings, line))
+            summary = publisher.publish(result, summary, lidar_only=lidar_only)
+        evaluation, record = _evaluate(result, span, config, out, fusion)
+        georef = dataclasses.replace(span.fit(result.trajectory, config), fusion=fusion)
         summary = dataclasses.replace(summary, evaluation=EvaluationSummary.from_dict(record))
-        summary = publisher.publish_evaluation(evaluation, summary)
+        summary = publisher.publish_evaluation(evaluation, georef, summary)
+        log.info(
+            "georeference: %s fit on %d epochs, residual %.3f m",
+            georef.method,
+            georef.epochs_used,
+            georef.residual.rmse_m,
+        )
         log.info("evaluated against %s: report in %s", span_log, out / "eval")
     return RunOutcome(result, summary, out)
 
@@ -339,17 +394,105 @@ def _check_evaluation_inputs(span_log, extrinsics) -> np.ndarray | None:
     return read_extrinsic(extrinsics) if extrinsics is not None else None
 
 
-def _evaluate(result: SlamResult, span_log, T_imu_lidar: np.ndarray | None, config: Config, out: Path):
-    """The evaluation against the SPAN log and its summary record (as a dict); writes nothing."""
+@dataclass(frozen=True, slots=True)
+class _SpanInputs:
+    """The SPAN log of a run, read once: the decoded log, its INS reference in ENU, the extrinsic."""
+
+    path: Path
+    log: SpanLog
+    reference: InsReference
+    T_imu_lidar: np.ndarray
+    sha256: str
+
+    @classmethod
+    def read(cls, span_log, T_imu_lidar: np.ndarray | None, config: Config) -> _SpanInputs:
+        from lidar3d.georef.georeference import file_sha256
+        from lidar3d.gnss.reader import read_span_log
+        from lidar3d.gnss.reference import origin_from_config, span_reference
+
+        log_record = read_span_log(span_log)
+        reference = span_reference(log_record, config.gnss, origin_from_config(config.gnss.origin))
+        T = np.eye(4) if T_imu_lidar is None else np.asarray(T_imu_lidar, dtype=np.float64)
+        return cls(Path(span_log), log_record, reference, T, file_sha256(span_log))
+
+    def fit(self, trajectory: Trajectory, config: Config) -> Georeference:
+        """The georeference of ``trajectory`` (:func:`lidar3d.georef.georeference.fit_georeference`)."""
+        from lidar3d.georef.georeference import fit_georeference
+
+        return fit_georeference(
+            trajectory,
+            self.reference,
+            T_imu_lidar=self.T_imu_lidar,
+            method=config.georef.method,
+            max_gap_s=config.gnss.max_association_gap_s,
+            max_fit_residual_m=config.georef.max_fit_residual_m,
+            span_source=str(self.path),
+            span_sha256=self.sha256,
+        )
+
+
+def _fuse_gnss(
+    result: SlamResult, span: _SpanInputs, config: Config, paths, start: int, done: int
+) -> tuple[SlamResult, GnssFusionRecord]:
+    """The result with the GNSS factors fused and the map placed again, and the fusion's record."""
+    from lidar3d.georef.georeference import GnssFusionRecord
+    from lidar3d.georef.gnss_factors import fuse_gnss
+    from lidar3d.mapping.dense_map import build_dense_map
+
+    initial = span.fit(result.trajectory, config)
+    fusion = fuse_gnss(
+        result.trajectory,
+        result.keyframes,
+        span.reference,
+        span.T_imu_lidar,
+        initial.T_enu_world,
+        config.georef,
+    )
+    with open_scan_source(paths, config) as source:
+        voxel_map = build_dense_map(itertools.islice(source, start, start + done), fusion.trajectory, config)
+    map_points, map_intensity = voxel_map.points_and_intensity()
+    fused = dataclasses.replace(
+        result,
+        trajectory=fusion.trajectory,
+        keyframes=fusion.keyframes,
+        map_points=map_points,
+        map_intensity=map_intensity,
+    )
+    s = fusion.selection
+    record = GnssFusionRecord(
+        span_source=str(span.path),
+        span_sha256=span.sha256,
+        fused_stamps_ns=s.stamps_ns,
+        candidates=s.candidates,
+        rejected_quality=s.rejected_quality,
+        rejected_consistency=s.rejected_consistency,
+        rejected_hold_out=s.rejected_hold_out,
+        hold_out_period_s=config.georef.hold_out_period_s,
+    )
+    return fused, record
+
+
+def _evaluate(result: SlamResult, span: _SpanInputs, config: Config, out: Path, fusion: GnssFusionRecord | None):
+    """The evaluation against the SPAN log and its summary record (as a dict); writes nothing.
+
+    A trajectory fused with the log is scored on the held-out periods only when there are any
+    (``georef.hold_out_period_s``), and the report says it was fused.
+    """
     from lidar3d.export.span_report import format_span_table, span_report_dict
     from lidar3d.metrics import evaluate_against_span
+    from lidar3d.metrics.span_eval import fusion_disclosure
 
+    estimate = result.trajectory
+    disclosure = None
+    if fusion is not None:
+        disclosure, estimate = fusion_disclosure(estimate, len(fusion.fused_stamps_ns), fusion.hold_out_period_s)
     evaluation = evaluate_against_span(
-        result.trajectory,
-        span_log,
-        T_imu_lidar=T_imu_lidar,
+        estimate,
+        span.log,
+        T_imu_lidar=span.T_imu_lidar,
         config=config.gnss,
         trajectory_source=str(out / "trajectory_tum.txt"),
     )
+    evaluation = dataclasses.replace(evaluation, fusion=disclosure)
     report = span_report_dict(evaluation)
     return evaluation, {"report": str(out / "eval"), "table": format_span_table(evaluation), "ate": report.get("ate")}

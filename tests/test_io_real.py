@@ -1,7 +1,8 @@
 """Real recorded data from ../shared/data/real (see its SOURCES.md).
 
-The nebula ROS2 sqlite3 bags hold raw ``velodyne_msgs/VelodyneScan`` packets, not PointCloud2, so
-the scan source must read their storage and then refuse them with the topics they have. The
+The nebula ROS2 sqlite3 bags hold raw ``velodyne_msgs/VelodyneScan`` packets, not PointCloud2: the
+PointCloud2 :class:`ScanSource` reads their storage and refuses them with the topics they have
+(``open_scan_source`` hands them to the packet source: tests/test_io_packets_real.py). The
 nebula PCDs beside them are that driver's decoded clouds (binary PCD, nebula's ``PointXYZIRCAEDT``
 fields); packed into PointCloud2 in nebula's own layout they are a real-driver field variant
 (``channel`` uint16 ring, ``time_stamp`` uint32 ns, uint8 intensity) with real VLP-16 and VLP-32C
@@ -166,13 +167,3 @@ def test_vlp32c_elevation_table_fits_the_real_sensor():
     assert np.abs(residual).max() < 0.1
     assert len(np.unique(scan.ring)) == 32
     assert guess_sensor_model(32, float(np.median(elevation_deg[scan.ring == 0]))) is VLP32C
-
-
-def test_cli_info_on_a_real_packet_bag_is_one_line(capsys):
-    from lidar3d.cli.main import main
-
-    assert main(["info", str(VLP16_BAG)]) == 1
-    assert capsys.readouterr().err.splitlines() == [
-        f"lidar3d info: error: {VLP16_BAG}: no sensor_msgs/msg/PointCloud2 topic; "
-        "topics: /velodyne_packets (velodyne_msgs/msg/VelodyneScan, 4)"
-    ]

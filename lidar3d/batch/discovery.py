@@ -5,8 +5,9 @@ An input is one of:
 * a file: taken as a bag as named (a ROS1 ``.bag``, or a ROS2 ``.db3``/``.mcap`` storage file; a
   ``metadata.yaml`` stands for its folder);
 * a ROS2 bag folder (a folder holding ``metadata.yaml``): one bag;
-* any other folder: searched recursively for ``*.bag`` files, ROS2 bag folders and lone
-  ``.db3``/``.mcap`` files; folders whose name starts with a dot are skipped;
+* any other folder: searched recursively for ``*.bag`` files, ROS2 bag folders, lone
+  ``.db3``/``.mcap`` files and ``*.pcap`` captures (raw Velodyne packets); folders whose name
+  starts with a dot are skipped;
 * a glob pattern (``data/2024-*/*.bag``, ``**`` recursive): every match, each treated as above
   except that files that are not bags by name are ignored.
 
@@ -38,7 +39,8 @@ class BagInput:
     Attributes:
         path: absolute path of the ``.bag`` file, ROS2 bag folder, or storage file.
         name: output-folder name, unique within the batch (see :func:`bag_names`).
-        kind: ``"ros1"``, ``"ros2"`` (a bag folder) or ``"ros2-storage"`` (a lone .db3/.mcap).
+        kind: ``"ros1"``, ``"ros2"`` (a bag folder), ``"ros2-storage"`` (a lone .db3/.mcap) or ``"pcap"``
+            (raw Velodyne packets).
     """
 
     path: Path
@@ -54,6 +56,8 @@ class BagInput:
 def _kind_of_file(path: Path) -> tuple[Path, str]:
     if path.name == "metadata.yaml":
         return path.parent, "ros2"
+    if path.suffix == ".pcap":
+        return path, "pcap"
     if path.suffix in _STORAGE_SUFFIXES:
         if (path.parent / "metadata.yaml").is_file():
             return path.parent, "ros2"
@@ -80,6 +84,8 @@ def _walk(folder: Path) -> Iterable[tuple[Path, str]]:
                 yield root_path / name, "ros1"
             elif name.endswith(_STORAGE_SUFFIXES):
                 yield root_path / name, "ros2-storage"
+            elif name.endswith(".pcap"):
+                yield root_path / name, "pcap"
 
 
 def _expand(item: str | Path) -> list[tuple[Path, str]]:
@@ -89,7 +95,9 @@ def _expand(item: str | Path) -> list[tuple[Path, str]]:
         if path.is_dir():
             found = sorted(_walk(path))
             if not found:
-                raise BagError(f"{text}: no bag in this folder (looked for *.bag, ROS2 bag folders, *.db3, *.mcap)")
+                raise BagError(
+                    f"{text}: no bag in this folder (looked for *.bag, ROS2 bag folders, *.db3, *.mcap, *.pcap)"
+                )
             return found
         return [_kind_of_file(path)]
     if _GLOB_CHARS & set(text):
@@ -99,7 +107,7 @@ def _expand(item: str | Path) -> list[tuple[Path, str]]:
             match_path = Path(match)
             if match_path.is_dir():
                 found.extend(sorted(_walk(match_path)))
-            elif match_path.name.endswith((".bag", *_STORAGE_SUFFIXES)) or match_path.name == "metadata.yaml":
+            elif match_path.name.endswith((".bag", ".pcap", *_STORAGE_SUFFIXES)) or match_path.name == "metadata.yaml":
                 found.append(_kind_of_file(match_path))
         if not found:
             raise BagError(f"{text}: no bag matches this pattern")

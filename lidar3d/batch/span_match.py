@@ -117,10 +117,19 @@ def log_time_range(path: str | Path, gnss_config=None) -> TimeRange | None:
 
 
 def bag_time_range(path: str | Path) -> TimeRange | None:
-    """Log time of a bag's first and last message (UNIX ns); None when it cannot be read."""
+    """Log time of a bag's first and last message (UNIX ns), or of a pcap's first and last data
+    packet (host clock); None when it cannot be read."""
+    from lidar3d.io.packet_source import PacketScanSource, is_packet_input
     from lidar3d.io.scan_source import ScanSource
 
     try:
+        if is_packet_input([path], None):
+            from lidar3d.config import Config
+
+            with PacketScanSource(path, Config(), quiet=True) as packets:
+                packets.count_sweeps()  # a pass over the packets: the last one's time
+                start_ns, end_ns = packets.start_end_ns
+            return None if start_ns is None or end_ns is None else (int(start_ns), int(end_ns))
         with ScanSource(path) as source:
             if source.start_ns is None or source.end_ns is None:
                 return None

@@ -20,6 +20,10 @@ UNIX-time stamps of the bag clock. LOG is a NovAtel ASCII (#INSPVAXA, #INSPVAA, 
 ...) or binary (.gps, raw receiver stream) log, optionally gzipped. The reference is the INS pose
 moved to the lidar: T_enu_lidar = T_enu_imu . T_imu_lidar. Writes report.json, errors.csv and PNG
 plots into DIR.
+
+A trajectory of a run made with --gnss-factors (georef.json beside it) that fused this very log is
+reported as fused; --held-out scores only its poses in the periods the run held out (lidar3d run
+--gnss-factors --gnss-hold-out S).
 """
 
 
@@ -52,6 +56,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         default=None,
         help="ENU origin: WGS84 degrees and ellipsoidal height in m (default: config, else the first good fix)",
     )
+    parser.add_argument(
+        "--held-out",
+        action="store_true",
+        help="a trajectory fused with LOG: score only the poses in the held-out periods",
+    )
     parser.add_argument("--config", metavar="FILE", help="TOML configuration ([gnss] section)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder for the report")
     parser.set_defaults(func=run)
@@ -72,14 +81,37 @@ def run(args: argparse.Namespace) -> int:
                 config = config_with(config, {"gnss": {key: value}})
             except ConfigError as err:
                 raise ConfigError(f"{flag}: {err}") from None
+    fusion = _fusion_with(args.trajectory, args.span)
+    if args.held_out and (fusion is None or fusion.hold_out_period_s <= 0.0):
+        why = "was not fused with this log" if fusion is None else "fused every epoch (no --gnss-hold-out)"
+        raise ConfigError(f"--held-out: {args.trajectory} {why}; there is nothing held out to score")
     result = evaluate_span_files(
         args.trajectory,
         args.span,
         extrinsics_path=args.extrinsics,
         align=args.align,
         config=config.gnss,
+        fused_epochs=None if fusion is None else len(fusion.fused_stamps_ns),
+        hold_out_period_s=0.0 if fusion is None else fusion.hold_out_period_s,
+        held_out_only=args.held_out,
     )
     write_span_report(result, args.out)
     print(format_span_table(result))
     print(f"report: {args.out}")
     return 0
+
+
+def _fusion_with(trajectory: str, span: str):
+    """The GNSS fusion record of the run holding ``trajectory`` when that run fused ``span`` (same
+    bytes), else None."""
+    from pathlib import Path
+
+    from lidar3d.georef.georeference import file_sha256, read_georeference
+
+    georef_path = Path(trajectory).parent / "georef.json"
+    if not georef_path.is_file():
+        return None
+    fusion = read_georeference(georef_path).fusion
+    if fusion is None or fusion.span_sha256 != file_sha256(span):
+        return None
+    return fusion

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from lidar3d.cli.packet_options import add_packet_arguments, apply_packet_arguments
 from lidar3d.export.front_end import FRONT_END_FILES, write_front_end_scan
 
 log = logging.getLogger(__name__)
@@ -47,7 +48,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog="example:\n  lidar3d features run.bag --out fe --scans 100:110\n  pcl_viewer fe/scan_000100/*.pcd",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s) or ROS2 bag folder")
+    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s), ROS2 bag folder, or pcap file(s)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(
         "--scans",
@@ -58,6 +59,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one)")
     parser.add_argument("--config", metavar="FILE", help="TOML configuration file")
+    add_packet_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -98,9 +100,10 @@ def export_front_end(
     from lidar3d.config import Config, config_to_toml
     from lidar3d.features import STAGES, run_front_end
     from lidar3d.io.atomic import write_text_atomic
+    from lidar3d.io.packet_source import input_config
     from lidar3d.io.scan_source import open_scan_source
 
-    config = config or Config()
+    config = input_config(bags, config or Config())
     out_dir = Path(out_dir)
     start, stop = scans
     write_text_atomic(out_dir / "config.toml", config_to_toml(config))
@@ -134,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
 
     from lidar3d.config import load_config
 
-    config = load_config(args.config)
+    config = apply_packet_arguments(load_config(args.config), args)
     if args.topic:
         config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
     summary = export_front_end(args.bags, args.out, scans=args.scans, config=config)

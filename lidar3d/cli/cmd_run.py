@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from lidar3d.cli.packet_options import add_packet_arguments, apply_packet_arguments
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
@@ -18,11 +20,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "examples:\n"
             "  lidar3d run drive.bag --out results/drive\n"
             "  lidar3d run drive_0.bag drive_1.bag --out results/drive --span span.log --extrinsics extrinsics.toml\n"
-            "  lidar3d run rosbag2_folder --out results/r2 --topic /velodyne_points --max-scans 500"
+            "  lidar3d run rosbag2_folder --out results/r2 --topic /velodyne_points --max-scans 500\n"
+            "  lidar3d run drive.bag --out results/fused --span span.log --extrinsics ext.toml --gnss-factors\n"
+            "\n"
+            "With --span the run also writes georef.json (the SLAM frame placed in ENU on WGS84), which\n"
+            "'lidar3d export' uses to write the map and trajectory in UTM, EPSG:NNNN, ENU or WGS84."
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s) or ROS2 bag folder")
+    parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s), ROS2 bag folder, or pcap file(s)")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one)")
     parser.add_argument("--config", metavar="FILE", help="TOML configuration (see 'lidar3d config')")
@@ -39,8 +45,20 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("--span", metavar="LOG", help="NovAtel SPAN log: evaluate the trajectory against it")
     parser.add_argument("--extrinsics", metavar="FILE", help="lidar-to-IMU extrinsic for --span (TOML/YAML)")
     parser.add_argument(
+        "--gnss-factors",
+        action="store_true",
+        help="fuse the --span log's good epochs as position factors in the pose graph (jumps rejected)",
+    )
+    parser.add_argument(
+        "--gnss-hold-out",
+        type=float,
+        metavar="S",
+        help="with --gnss-factors: fuse only even S-second periods, score the odd ones (georef.hold_out_period_s)",
+    )
+    parser.add_argument(
         "--overwrite", action="store_true", help="replace the outputs of an earlier run in DIR (else refused)"
     )
+    add_packet_arguments(parser)
     parser.set_defaults(func=run)
 
 
@@ -52,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from lidar3d.errors import ConfigError
     from lidar3d.run import run_bag
 
-    config = load_config(args.config)
+    config = apply_packet_arguments(load_config(args.config), args)
     if args.topic:
         config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
     if args.no_loop:
@@ -70,6 +88,15 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--max-scans must be 1 or more, got {args.max_scans}")
     if args.extrinsics and not args.span:
         raise ConfigError("--extrinsics needs --span")
+    if args.gnss_factors and not args.span:
+        raise ConfigError("--gnss-factors needs --span (the log to fuse)")
+    if args.gnss_hold_out is not None:
+        if not args.gnss_factors:
+            raise ConfigError("--gnss-hold-out needs --gnss-factors")
+        try:
+            config = config_with(config, {"georef": {"hold_out_period_s": args.gnss_hold_out}})
+        except ConfigError as err:
+            raise ConfigError(f"--gnss-hold-out: {err}") from None
     progress = ScanProgress("run", quiet=args.quiet)
     try:
         outcome = run_bag(
@@ -83,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
             on_scan=progress.update,
             on_health=progress.note_health,
             overwrite=args.overwrite,
+            gnss_factors=args.gnss_factors,
         )
     finally:
         progress.close()

@@ -115,6 +115,11 @@ def span_report_dict(result: SpanEvaluation) -> dict:
                 "T_reference_estimate": ev.T_reference_estimate,
             },
             "warnings": list(result.warnings),
+            **(
+                {}
+                if result.fusion is None
+                else {"fusion": {**dataclasses.asdict(result.fusion), "note": result.fusion.line()}}
+            ),
             "ate": dataclasses.asdict(ev.ate),
             "rpe_kitti": dataclasses.asdict(ev.kitti),
             "rpe_distance": [dataclasses.asdict(d) for d in ev.distance_rpe],
@@ -326,4 +331,6 @@ def format_span_table(result: SpanEvaluation) -> str:
     else:
         lines.append("  KITTI RPE: no segment of 100 m or more")
     lines.extend(f"warning: {line}" for line in result.warnings)
+    if result.fusion is not None:
+        lines.append(f"note: {result.fusion.line()}")
     return "\n".join(lines)

@@ -1,4 +1,9 @@
-"""Point clouds to PCD through Open3D's tensor API (binary, float32 x y z, extra scalar fields)."""
+"""Point clouds to PCD through Open3D's tensor API (binary, float32 x y z, extra scalar fields).
+
+:func:`read_pcd_fields` reads the uncompressed binary layout (what :func:`write_pcd` writes) with
+NumPy alone, without importing Open3D (about 1.5 s saved per process), and falls back to
+:func:`read_pcd` for other layouts.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +14,7 @@ import numpy as np
 from lidar3d.errors import OutputError
 from lidar3d.io.atomic import atomic_path, write_text_atomic
 
-__all__ = ["read_pcd", "write_pcd"]
+__all__ = ["read_pcd", "read_pcd_fields", "write_pcd"]
 
 
 def write_pcd(path: str | Path, points: np.ndarray, **fields: np.ndarray) -> None:
@@ -70,3 +75,52 @@ def read_pcd(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
         if name != "positions":
             extra[name] = cloud.point[name].numpy().reshape(-1)
     return points, extra
+
+
+_PCD_TYPES = {
+    ("F", 4): "<f4",
+    ("F", 8): "<f8",
+    ("I", 1): "<i1",
+    ("I", 2): "<i2",
+    ("I", 4): "<i4",
+    ("I", 8): "<i8",
+    ("U", 1): "<u1",
+    ("U", 2): "<u2",
+    ("U", 4): "<u4",
+    ("U", 8): "<u8",
+}
+
+
+def read_pcd_fields(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """As :func:`read_pcd`: (N,3) float64 points and the other fields; binary PCDs read by NumPy."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as stream:
+            header: dict[str, list[str]] = {}
+            while True:
+                line = stream.readline()
+                if not line:
+                    return read_pcd(path)
+                words = line.decode("ascii", "replace").split()
+                if not words or words[0].startswith("#"):
+                    continue
+                header[words[0].upper()] = words[1:]
+                if words[0].upper() == "DATA":
+                    break
+            offset = stream.tell()
+    except FileNotFoundError:
+        raise OutputError(f"{path}: point cloud file not found") from None
+    try:
+        names, sizes, types = header["FIELDS"], [int(v) for v in header["SIZE"]], header["TYPE"]
+        counts = [int(v) for v in header.get("COUNT", ["1"] * len(names))]
+        n = int(header["POINTS"][0])
+        dtype = np.dtype([(name, _PCD_TYPES[(t, size)]) for name, t, size in zip(names, types, sizes)])
+    except (KeyError, ValueError, IndexError):
+        return read_pcd(path)
+    if header["DATA"] != ["binary"] or any(c != 1 for c in counts) or not {"x", "y", "z"} <= set(names):
+        return read_pcd(path)
+    record = np.fromfile(path, dtype=dtype, count=n, offset=offset)
+    if len(record) != n:
+        raise OutputError(f"{path}: truncated point cloud ({len(record)} of {n} points)")
+    points = np.column_stack([record["x"], record["y"], record["z"]]).astype(np.float64)
+    return points, {name: record[name].copy() for name in names if name not in ("x", "y", "z")}

@@ -67,6 +67,8 @@ RUN_OUTPUT_NAMES = (
     "keyframes_tum.txt",
     "health.csv",
     "map.pcd",
+    "georef.json",
+    "trajectory_lidar_only_tum.txt",
     "loops.csv",
     "pose_graph.g2o",
     "trajectory_loops.png",

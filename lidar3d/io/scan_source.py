@@ -14,9 +14,8 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from lidar3d.errors import BagError, PointCloudError
 from lidar3d.io.bag_inputs import (
@@ -28,85 +27,18 @@ from lidar3d.io.bag_inputs import (
     merged_messages,
     open_bag_input,
 )
-from lidar3d.io.pointcloud2 import POINTCLOUD2_TYPE, DecodeStats, PointCloud2Parts
+from lidar3d.io.pointcloud2 import PointCloud2Parts
 from lidar3d.io.scan_decoder import ScanDecoder, deserialize_cloud
-from lidar3d.io.scan_sanity import SanityCounts
+from lidar3d.io.scan_reading import ReadStats, bag_label, choose_lidar_topic
 from lidar3d.records import Scan
 from lidar3d.sensors import VLP16, SensorModel
 
-__all__ = ["ReadStats", "ScanSource", "bag_label", "choose_lidar_topic", "open_scan_source"]
+if TYPE_CHECKING:
+    from lidar3d.io.packet_source import PacketScanSource
+
+__all__ = ["ScanSource", "open_scan_source"]
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass(frozen=True, slots=True)
-class ReadStats:
-    """Totals over the scans read so far (counts of scans, points and messages).
-
-    ``n_points_kept`` entered the front end; the drops are by decoding (``n_below_min_range``) and
-    by the sanity stage (``n_nonfinite``, ``n_absurd_coordinates``, ``n_outlier_times``: see
-    :mod:`lidar3d.io.scan_sanity`). ``n_scans_times_from_azimuth`` scans had no usable time field
-    (:class:`~lidar3d.io.pointcloud2.TimeSource`): their point times were derived from the azimuth.
-    """
-
-    n_scans: int = 0
-    n_points_in: int = 0
-    n_points_kept: int = 0
-    n_nonfinite: int = 0
-    n_below_min_range: int = 0
-    n_absurd_coordinates: int = 0
-    n_outlier_times: int = 0
-    n_lost_messages: int = 0
-    n_scans_times_from_azimuth: int = 0
-
-    def add(self, stats: DecodeStats, counts: SanityCounts) -> ReadStats:
-        return ReadStats(
-            n_scans=self.n_scans + 1,
-            n_points_in=self.n_points_in + stats.n_input,
-            n_points_kept=self.n_points_kept + stats.n_kept - counts.n_dropped,
-            n_nonfinite=self.n_nonfinite + counts.n_nonfinite,
-            n_below_min_range=self.n_below_min_range + stats.n_below_min_range,
-            n_absurd_coordinates=self.n_absurd_coordinates + counts.n_absurd_coordinates,
-            n_outlier_times=self.n_outlier_times + counts.n_outlier_times,
-            n_lost_messages=self.n_lost_messages,
-            n_scans_times_from_azimuth=self.n_scans_times_from_azimuth + stats.time_source.from_azimuth,
-        )
-
-
-def bag_label(paths: Sequence[Path]) -> str:
-    """How error messages name the input: the path, or the first paths and a count."""
-    if len(paths) == 1:
-        return str(paths[0])
-    shown = ", ".join(str(p) for p in paths[:3])
-    return shown + (f" (+{len(paths) - 3} more)" if len(paths) > 3 else "")
-
-
-def _describe_topics(topics: dict[str, TopicInfo]) -> str:
-    return ", ".join(f"{t.name} ({t.msgtype}, {t.count})" for t in sorted(topics.values(), key=lambda t: t.name))
-
-
-def choose_lidar_topic(topics: dict[str, TopicInfo], topic: str | None, label: str) -> str:
-    """The PointCloud2 topic to read: ``topic`` if given (checked), else the only PointCloud2 topic.
-
-    Raises:
-        BagError: the bag is empty, has no PointCloud2 topic, several and no choice, or the
-            chosen topic does not exist or is not a PointCloud2 topic.
-    """
-    if not topics or sum(t.count for t in topics.values()) == 0:
-        raise BagError(f"{label}: bag is empty (no messages)")
-    clouds = sorted(name for name, t in topics.items() if t.msgtype == POINTCLOUD2_TYPE)
-    if topic:
-        if topic not in topics:
-            candidates = ", ".join(clouds) if clouds else "none; topics: " + _describe_topics(topics)
-            raise BagError(f"{label}: topic {topic!r} not found; PointCloud2 topics: {candidates}")
-        if topics[topic].msgtype != POINTCLOUD2_TYPE:
-            raise BagError(f"{label}: topic {topic!r} has type {topics[topic].msgtype}, not {POINTCLOUD2_TYPE}")
-        return topic
-    if not clouds:
-        raise BagError(f"{label}: no {POINTCLOUD2_TYPE} topic; topics: {_describe_topics(topics)}")
-    if len(clouds) > 1:
-        raise BagError(f"{label}: several PointCloud2 topics ({', '.join(clouds)}); choose one with --topic")
-    return clouds[0]
 
 
 class ScanSource:
@@ -323,17 +255,24 @@ def _log_read_totals(stats: ReadStats, label: str, min_range_m: float) -> None:
     )
 
 
-def open_scan_source(paths: str | Path | Sequence[str | Path], config: Any = None) -> ScanSource:
-    """A :class:`ScanSource` configured from a :class:`lidar3d.config.Config` (defaults when None).
+def open_scan_source(paths: str | Path | Sequence[str | Path], config: Any = None) -> ScanSource | PacketScanSource:
+    """The scan source of ``paths`` configured from a :class:`lidar3d.config.Config` (defaults when None).
 
-    Uses ``config.input.topic``, ``config.input.azimuth_stamp``, ``config.sensor.resolved_model`` and
-    ``config.sensor.min_range_m``.
-    Not yet opened: use it in a ``with`` block.
+    Raw packets (pcap files, a bag whose lidar topic is a VelodyneScan topic:
+    :func:`lidar3d.io.packet_source.is_packet_input`) give a
+    :class:`~lidar3d.io.packet_source.PacketScanSource`; PointCloud2 bags a :class:`ScanSource` with
+    ``config.input.topic``, ``config.input.azimuth_stamp``, ``config.sensor.resolved_model`` and
+    ``config.sensor.min_range_m``. Not yet opened: use it in a ``with`` block.
     """
+    from lidar3d.io.packet_source import PacketScanSource, is_packet_input
+
     if config is None:
         from lidar3d.config import Config
 
         config = Config()
+    listed = [paths] if isinstance(paths, (str, Path)) else list(paths)
+    if is_packet_input(listed, config.input.topic or None):
+        return PacketScanSource(listed, config)
     return ScanSource(
         paths,
         topic=config.input.topic or None,

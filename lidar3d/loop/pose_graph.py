@@ -23,6 +23,10 @@ exactly once, then cleared (DESIGN.md: iSAM2 gets only the new factors and value
 linear system), the error is logged, the new loop factors of that batch are retried one at a time
 on a graph rebuilt from the factors already accepted, and every loop factor that still fails is
 dropped; odometry is never dropped.
+
+**GNSS position factors.** :func:`fuse_positions` solves a separate batch graph after a run: the
+final keyframe chain as odometry factors plus ``GPSFactor`` s (position-only, on the keyframe's
+lidar origin, Huber) chosen by :mod:`lidar3d.georef.gnss_factors` (LIO-SAM ``addGPSFactor``).
 """
 
 from __future__ import annotations
@@ -40,7 +44,7 @@ from lidar3d.mapping.se3 import nearest_rigid
 if TYPE_CHECKING:
     import gtsam
 
-__all__ = ["GraphEdge", "PoseGraph", "format_g2o"]
+__all__ = ["GraphEdge", "PoseGraph", "format_g2o", "fuse_positions"]
 
 log = logging.getLogger(__name__)
 
@@ -443,3 +447,56 @@ def _pose_fields(T: np.ndarray) -> list[str]:
     """x y z qx qy qz qw of a 4x4 transform."""
     q = Rotation.from_matrix(T[:3, :3]).as_quat()  # (x, y, z, w)
     return [f"{v:.9f}" for v in T[:3, 3]] + [f"{v:.9f}" for v in q]
+
+
+def fuse_positions(
+    T_world_keyframes: np.ndarray,
+    odometry_sigmas: np.ndarray,
+    keyframe_index: np.ndarray,
+    p_world_m: np.ndarray,
+    sigma_m: np.ndarray,
+    huber_k: float = 1.345,
+) -> np.ndarray:
+    """Keyframe poses moved onto position measurements: a batch solve of odometry + GNSS factors.
+
+    The graph holds a ``BetweenFactor(X(k-1), X(k))`` per consecutive pair of ``T_world_keyframes``
+    (their relative pose as the measurement; it carries the loop closures already applied) and a
+    ``GPSFactor(X(k), p)`` per measurement (the keyframe origin, i.e. the lidar, at ``p``) with
+    diagonal sigmas behind a Huber kernel of ``huber_k``. No prior: the measurements fix the gauge.
+    Solved by Levenberg-Marquardt from the given poses.
+
+    Args:
+        T_world_keyframes: (K, 4, 4) initial keyframe poses (the frame of the measurements).
+        odometry_sigmas: (K-1, 6) sigmas per odometry factor, GTSAM order (rad x3, m x3).
+        keyframe_index: (F,) keyframe of each measurement (F >= 3).
+        p_world_m: (F, 3) measured positions; ``sigma_m``: (F, 3) their standard deviations.
+
+    Returns:
+        (K, 4, 4) optimised poses.
+    """
+    import gtsam
+
+    poses = np.asarray(T_world_keyframes, dtype=np.float64)
+    index = np.asarray(keyframe_index, dtype=np.int64)
+    points = np.asarray(p_world_m, dtype=np.float64).reshape(-1, 3)
+    sigmas = np.asarray(sigma_m, dtype=np.float64).reshape(-1, 3)
+    odometry = np.asarray(odometry_sigmas, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] != (4, 4) or odometry.shape != (len(poses) - 1, 6):
+        raise ValueError("fuse_positions needs (K,4,4) poses and (K-1,6) odometry sigmas")
+    if len(index) < 3 or points.shape != (len(index), 3) or sigmas.shape != points.shape:
+        raise ValueError("fuse_positions needs at least 3 measurements, (F,3) positions and sigmas")
+    if not (sigmas > 0).all() or index.min() < 0 or index.max() >= len(poses):
+        raise ValueError("measurement sigmas must be positive and keyframe indices in range")
+    graph = gtsam.NonlinearFactorGraph()
+    for k in range(1, len(poses)):
+        T_prev_curr = np.linalg.inv(poses[k - 1]) @ poses[k]
+        graph.add(_odometry_factor(k, nearest_rigid(T_prev_curr), _check_sigmas(odometry[k - 1]))[0])
+    huber = gtsam.noiseModel.mEstimator.Huber.Create(huber_k)
+    for k, p, s in zip(index, points, sigmas):
+        noise = gtsam.noiseModel.Robust.Create(huber, gtsam.noiseModel.Diagonal.Sigmas(s))
+        graph.add(gtsam.GPSFactor(_symbol(int(k)), gtsam.Point3(*p), noise))
+    initial = _values({k: _check_pose(T, f"keyframe {k}") for k, T in enumerate(poses)})
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(100)
+    result = gtsam.LevenbergMarquardtOptimizer(graph, initial, params).optimize()
+    return np.array([result.atPose3(_symbol(k)).matrix() for k in range(len(poses))])

@@ -26,9 +26,52 @@ from lidar3d.metrics.alignment import AlignmentMode
 from lidar3d.metrics.evaluation import Evaluation, evaluate_trajectory
 from lidar3d.records import Trajectory
 
-__all__ = ["SpanEvaluation", "evaluate_against_span", "evaluate_span_files"]
+__all__ = ["FusionDisclosure", "SpanEvaluation", "evaluate_against_span", "evaluate_span_files", "fusion_disclosure"]
 
 logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class FusionDisclosure:
+    """An evaluation of a trajectory that was fused with the log it is scored against.
+
+    Attributes:
+        fused_epochs: GNSS epochs the run fused (``georef.json`` ``gnss_factors``).
+        hold_out_period_s: the run fused only even periods of this length (0: every period).
+        held_out_only: the score uses only poses in the held-out (odd) periods.
+        poses_scored: poses of the trajectory handed to the evaluation; ``poses_total`` all of them.
+    """
+
+    fused_epochs: int
+    hold_out_period_s: float
+    held_out_only: bool
+    poses_scored: int
+    poses_total: int
+
+    def line(self) -> str:
+        """One line for the report and the table."""
+        head = f"the trajectory was fused with this log ({self.fused_epochs} GNSS epochs as factors)"
+        if self.held_out_only:
+            return (
+                f"{head}; scored on the held-out epochs only ({self.poses_scored} of {self.poses_total} poses, "
+                f"odd {self.hold_out_period_s:g} s periods; INS errors correlate over seconds: not fully independent)"
+            )
+        return f"{head}; the score is not independent (run with georef.hold_out_period_s > 0 to hold epochs out)"
+
+
+def fusion_disclosure(
+    estimate: Trajectory, fused_epochs: int, hold_out_period_s: float, *, held_out_only: bool = True
+) -> tuple[FusionDisclosure, Trajectory]:
+    """The disclosure and the trajectory to score: with a hold-out period (and ``held_out_only``),
+    only the poses in odd periods, floor(t / period) odd."""
+    use_held_out = held_out_only and hold_out_period_s > 0.0
+    scored = estimate
+    if use_held_out:
+        period_ns = int(round(hold_out_period_s * 1e9))
+        keep = (estimate.stamps_ns // period_ns) % 2 == 1
+        scored = Trajectory(estimate.stamps_ns[keep], estimate.T_world_lidar[keep])
+    disclosure = FusionDisclosure(int(fused_epochs), float(hold_out_period_s), use_held_out, len(scored), len(estimate))
+    return disclosure, scored
 
 
 @dataclass(frozen=True, slots=True)
@@ -45,6 +88,7 @@ class SpanEvaluation:
         warnings: one line each for the report: log messages skipped for non-finite or
             out-of-range values, then the evaluation's (ill-conditioned alignment). Each was logged
             once where it arose (the reader, :func:`~lidar3d.metrics.evaluation.evaluate_trajectory`).
+        fusion: set when the trajectory was fused with this log (``lidar3d run --gnss-factors``).
     """
 
     evaluation: Evaluation
@@ -55,6 +99,7 @@ class SpanEvaluation:
     trajectory_source: str = ""
     span_source: str = ""
     warnings: tuple[str, ...] = ()
+    fusion: FusionDisclosure | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "warnings", tuple(self.warnings))
@@ -142,11 +187,16 @@ def evaluate_span_files(
     time_offset_s: float | None = None,
     origin: GeodeticOrigin | None = None,
     config: GnssConfig | None = None,
+    fused_epochs: int | None = None,
+    hold_out_period_s: float = 0.0,
+    held_out_only: bool = False,
 ) -> SpanEvaluation:
     """``lidar3d eval TRAJECTORY --span LOG [--extrinsics FILE] [--align] [--time-offset] [--origin]``.
 
     Reads the trajectory with :func:`lidar3d.io.trajectory_io.read_trajectory` (TUM or KITTI);
     ``time_offset_s`` and ``origin`` override the config's; see :func:`evaluate_against_span`.
+    ``fused_epochs``: the trajectory was fused with this log (the result's ``fusion`` says so);
+    with ``held_out_only`` only its poses in the held-out periods of ``hold_out_period_s`` are scored.
     ``lidar3d eval --out DIR`` then writes the report with
     :func:`lidar3d.export.span_report.write_span_report`.
     """
@@ -156,8 +206,11 @@ def evaluate_span_files(
     if time_offset_s is not None:
         config = dataclasses.replace(config, time_offset_s=float(time_offset_s))
     estimate = read_trajectory(trajectory_path)
+    disclosure = None
+    if fused_epochs is not None:
+        disclosure, estimate = fusion_disclosure(estimate, fused_epochs, hold_out_period_s, held_out_only=held_out_only)
     T_imu_lidar = read_extrinsic(extrinsics_path) if extrinsics_path is not None else None
-    return evaluate_against_span(
+    result = evaluate_against_span(
         estimate,
         span_path,
         T_imu_lidar=T_imu_lidar,
@@ -166,3 +219,4 @@ def evaluate_span_files(
         origin=origin,
         trajectory_source=str(trajectory_path),
     )
+    return result if disclosure is None else dataclasses.replace(result, fusion=disclosure)

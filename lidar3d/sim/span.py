@@ -46,6 +46,7 @@ __all__ = [
     "degraded_window_ns",
     "enu_to_geodetic",
     "gps_week_seconds",
+    "shift_positions",
     "span_log_lines",
 ]
 
@@ -320,3 +321,26 @@ def span_log_lines(
             ]
             lines.append(_line("BESTPOSA", params.port, time_fields, "6145", body))
     return lines
+
+
+def shift_positions(lines: list[str], start_gps_s: float, end_gps_s: float, east_m: float, north_m: float) -> list[str]:
+    """The log ``lines`` with the INSPVAX and BESTPOS positions in [start, end) (GPS seconds of week)
+    moved by (east_m, north_m), their status left as it was and their CRC recomputed: a position jump
+    the receiver does not flag (a test of the GNSS factors' consistency gate). Other lines are kept.
+    The shift uses a sphere of the WGS84 semi-major axis (0.3 % of the shift at most)."""
+    radius_m = 6_378_137.0
+    out = []
+    for line in lines:
+        content = line[1 : line.index("*")] if line.startswith("#") else ""
+        header, _, body = content.partition(";")
+        fields = header.split(",")
+        if fields[0] not in ("INSPVAXA", "BESTPOSA") or not start_gps_s <= float(fields[6]) < end_gps_s:
+            out.append(line)
+            continue
+        values = body.split(",")
+        latitude = float(values[2])
+        values[2] = f"{latitude + np.degrees(north_m / radius_m):.11f}"
+        values[3] = f"{float(values[3]) + np.degrees(east_m / (radius_m * np.cos(np.radians(latitude)))):.11f}"
+        content = header + ";" + ",".join(values)
+        out.append(f"#{content}*{novatel_crc32(content.encode('ascii')):08x}\r\n")
+    return out
