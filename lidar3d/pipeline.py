@@ -36,6 +36,7 @@ from lidar3d.loop.records import LoopCandidate
 from lidar3d.mapping.dense_map import add_scan_to_map, build_dense_map
 from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
+from lidar3d.mapping.step_uncertainty import StepUncertainty
 from lidar3d.mapping.sweep import SweepFeatures
 from lidar3d.mapping.tracker import SettledSweep, Tracker
 from lidar3d.mapping.voxel import VoxelMap
@@ -138,6 +139,7 @@ class SlamPipeline:
         )
         self.loop = LoopCloser(config.loop) if config.loop.enabled else None
         self.health = HealthMonitor(config.health)
+        self._step_uncertainty = StepUncertainty(config.motion)
         self.stats = RunStatistics()
         self._map = VoxelMap(mp.map_voxel_m)
         self._estimates: list[ScanEstimate] = []
@@ -168,6 +170,12 @@ class SlamPipeline:
         self.stats.add_timings(prepared.stage_ms)
         previous = self._estimates[-1] if self._estimates else None
         track = self.tracker.track(prepared)
+        self._step_uncertainty.add(
+            track.T_world_lidar,
+            (stamp_ns - previous.stamp_ns) * 1e-9 if previous is not None else 0.0,
+            track.registration.information if track.registration is not None else None,
+            track.prior.information if track.prior is not None else None,
+        )
         health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health))
         self.stats.add_timings(track.timings_ms)
         if track.registration is not None and track.registration.degenerate_axes:
@@ -274,7 +282,8 @@ class SlamPipeline:
     ) -> LoopUpdate | None:
         """Add a keyframe and look for a loop at it; an accepted loop is applied at once."""
         corner, surf = deskewed.keyframe_clouds(self.config.mapping)
-        self.submap.add(Keyframe(len(self.submap), scan_index, stamp_ns, T_world_lidar, corner, surf))
+        step = self._step_uncertainty.take() if len(self.submap) else None
+        self.submap.add(Keyframe(len(self.submap), scan_index, stamp_ns, T_world_lidar, corner, surf, step))
         if self.loop is None:
             return None
         t0 = time.perf_counter()

@@ -93,6 +93,15 @@ def _check_sigmas(sigmas: np.ndarray) -> np.ndarray:
     return sigmas
 
 
+def _check_covariance(covariance: np.ndarray) -> np.ndarray:
+    covariance = np.asarray(covariance, dtype=np.float64)
+    if covariance.shape != (6, 6) or not np.isfinite(covariance).all():
+        raise ValueError(f"step covariance must be a finite (6,6) matrix, got shape {covariance.shape}")
+    if np.linalg.eigvalsh(0.5 * (covariance + covariance.T)).min() < 0.0:
+        raise ValueError("step covariance must be positive semi-definite")
+    return covariance
+
+
 def _check_information(information: np.ndarray) -> np.ndarray:
     """A finite (6,6) information matrix, symmetrised, that must be positive definite."""
     information = np.asarray(information, dtype=np.float64)
@@ -117,16 +126,19 @@ def _prior_factor(T_world_lidar: np.ndarray) -> gtsam.NonlinearFactor:
 
 
 def _odometry_factor(
-    index: int, T_prev_curr: np.ndarray, sigmas: np.ndarray
+    index: int, T_prev_curr: np.ndarray, sigmas: np.ndarray, step_covariance: np.ndarray | None = None
 ) -> tuple[gtsam.NonlinearFactor, GraphEdge]:
-    """``BetweenFactor(X(index-1), X(index), T_prev_curr)`` with diagonal noise ``sigmas`` (GTSAM
-    order), and its edge for export."""
+    """``BetweenFactor(X(index-1), X(index), T_prev_curr)`` with noise ``diag(sigmas²)`` (GTSAM
+    order) plus the (6,6) ``step_covariance`` when given, and its edge for export."""
     import gtsam
 
     key = _symbol(index)
-    noise = gtsam.noiseModel.Diagonal.Sigmas(sigmas)
+    covariance = np.diag(sigmas**2)
+    if step_covariance is not None:
+        covariance = covariance + 0.5 * (step_covariance + step_covariance.T)
+    noise = gtsam.noiseModel.Gaussian.Covariance(covariance)
     factor = gtsam.BetweenFactorPose3(_symbol(index - 1), key, gtsam.Pose3(T_prev_curr), noise)
-    return factor, GraphEdge(index - 1, index, T_prev_curr, np.diag(1.0 / sigmas**2), "odometry")
+    return factor, GraphEdge(index - 1, index, T_prev_curr, np.linalg.inv(covariance), "odometry")
 
 
 def _loop_factor(
@@ -269,6 +281,7 @@ class PoseGraph:
         T_world_lidar: np.ndarray,
         T_prev_curr: np.ndarray | None = None,
         sigmas: np.ndarray | None = None,
+        step_covariance: np.ndarray | None = None,
     ) -> None:
         """Add keyframe ``index`` (must be ``len(self)``).
 
@@ -279,6 +292,8 @@ class PoseGraph:
             T_prev_curr: (4,4) odometry from keyframe ``index-1`` to this one; default
                 ``inv(T_world_prev) @ T_world_lidar`` from the previous keyframe's given pose.
             sigmas: (6,) odometry sigmas, GTSAM order (rad ×3, m ×3). Required for ``index > 0``.
+            step_covariance: optional (6,6) covariance of the step from the registration (GTSAM
+                order), added to ``diag(sigmas²)``.
         """
         if index != self._n:
             raise ValueError(f"keyframes must be added in order: expected {self._n}, got {index}")
@@ -293,7 +308,9 @@ class PoseGraph:
             if T_prev_curr is None:
                 T_prev_curr = np.linalg.solve(self._initial[index - 1], T_world_lidar)
             T_prev_curr = _check_pose(T_prev_curr, "T_prev_curr")
-            factor, edge = _odometry_factor(index, T_prev_curr, sigmas)
+            if step_covariance is not None:
+                step_covariance = _check_covariance(step_covariance)
+            factor, edge = _odometry_factor(index, T_prev_curr, sigmas, step_covariance)
             self.edges.append(edge)
             self._pending_factors.append((factor, edge))
             previous = self._latest_estimate(index - 1)

@@ -25,6 +25,9 @@ class Keyframe:
         T_world_lidar: (4,4) pose at selection time (corrections live in the pose graph).
         corner_points: (M,3) downsampled edge features, lidar frame (float32 in the pipeline).
         surf_points: (K,3) downsampled planar features, outliers and ground, lidar frame.
+        step_covariance: (6,6) covariance of the step from the previous keyframe to this one
+            (GTSAM order ``[w (rad), v (m)]``, this keyframe's frame;
+            :class:`~lidar3d.mapping.step_uncertainty.StepUncertainty`), None when unknown.
     """
 
     index: int
@@ -33,6 +36,7 @@ class Keyframe:
     T_world_lidar: np.ndarray
     corner_points: np.ndarray
     surf_points: np.ndarray
+    step_covariance: np.ndarray | None = None
 
 
 class KeyframeSelector:
@@ -133,7 +137,7 @@ class Submap:
         """Replace keyframe ``k``'s clouds (e.g. once a better deskewing motion is known)."""
         old = self.keyframes[k]
         self.keyframes[k] = Keyframe(
-            old.index, old.scan_index, old.stamp_ns, old.T_world_lidar, corner_points, surf_points
+            old.index, old.scan_index, old.stamp_ns, old.T_world_lidar, corner_points, surf_points, old.step_covariance
         )
         self._cache.pop(k, None)
         self._target = None
