@@ -169,6 +169,16 @@ def test_map_voxel_changes_the_map(simulated, window_run, tmp_path):
     )
 
 
+def test_loop_source_reaches_the_config_and_loops_csv_names_the_source(simulated, full_run, tmp_path):
+    out = tmp_path / "place"
+    window = ["--start", WINDOW.start, "--max-scans", len(WINDOW)]
+    assert _run(simulated.bag, "--out", out, *window, "--loop-source", "place") == 0
+    assert load_config(out / "config.toml").loop.source == "place"
+    assert load_config(full_run / "config.toml").loop.source == "both"
+    header = (full_run / "loops.csv").read_text().splitlines()[0].split(",")
+    assert header[:3] == ["query_keyframe", "match_keyframe", "source"]
+
+
 @pytest.mark.parametrize("storage", ["ros2-sqlite3", "ros2-mcap"])
 def test_ros2_bags_give_the_same_result(storage, sweeps, window_run, tmp_path):
     bag = tmp_path / "scans"
