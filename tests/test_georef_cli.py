@@ -98,6 +98,9 @@ def test_exported_laz_has_the_crs_and_lies_on_the_route(georeferenced, simulated
     assert las.header.parse_crs().equals(CRS.from_epsg(32632), ignore_axis_order=True)
     assert len(las.x) == read_summary(georeferenced / "summary.json").map_points
     assert las.header.scales.tolist() == [0.001, 0.001, 0.001]
+    # every point is "return 1 of 1" and the header counts them so (LAS 1.4 wants 1-15, not 0)
+    assert np.all(las.return_number == 1) and np.all(las.number_of_returns == 1)
+    assert las.header.number_of_points_by_return[0] == len(las.x)
     _, truth = _truth_in(32632, simulated)
     centre = np.array([np.median(las.x), np.median(las.y)])
     assert np.linalg.norm(centre - truth[:, :2].mean(axis=0)) < 60.0  # the points surround the route

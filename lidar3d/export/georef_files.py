@@ -55,6 +55,10 @@ def write_las(path: str | Path, points: np.ndarray, intensity: np.ndarray, crs: 
     las = laspy.LasData(header)
     las.x, las.y, las.z = points[:, 0], points[:, 1], points[:, 2]
     las.intensity = np.clip(np.rint(np.asarray(intensity, dtype=np.float64)), 0, 65535).astype(np.uint16)
+    # Map points are voxel means of single returns: each is "return 1 of 1" (LAS 1.4 wants 1-15;
+    # lasvalidate flags 0), and the header's points-by-return counts them all as first returns.
+    las.return_number = np.ones(len(points), dtype=np.uint8)
+    las.number_of_returns = np.ones(len(points), dtype=np.uint8)
     with atomic_path(path) as tmp:
         backend = laspy.LazBackend.Lazrs if compress else None
         las.write(str(tmp), do_compress=compress, laz_backend=backend)
