@@ -526,6 +526,9 @@ class DynamicConfig:
     ground_band_m: float = _key(
         0.2, _closed(0.0, 10.0, "m"), "voxels this close above the lowest point around them are kept (0: off)"
     )
+    ground_band_per_m: float = _key(
+        0.01, _closed(0.0, 1.0), "... plus this much per metre of range from their sweep's sensor (pose tilt errors)"
+    )
     vote_ratio: float = _key(
         1.0,
         _closed(0.0, 1000.0),

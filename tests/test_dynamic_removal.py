@@ -145,3 +145,65 @@ def test_the_vote_at_the_end_moves_voxels_a_moving_object_held_in_most_sweeps(ci
     with_vote = _dense_map(city[:20])
     assert len(with_vote.static) <= len(without.static)
     assert len(with_vote.static) + len(with_vote.dynamic) >= len(without.static)
+
+
+# ---------------------------------------------------------------- lidar3d run and the simulator's labels
+
+
+@pytest.fixture(scope="module")
+def traffic_bag(tmp_path_factory):
+    from lidar3d.sim import simulate
+
+    return simulate("city_traffic", tmp_path_factory.mktemp("traffic") / "sim", duration_s=1.5, labels=True)
+
+
+def test_simulate_writes_point_labels_in_bag_order_only_when_asked(traffic_bag, tmp_path):
+    import json
+
+    from lidar3d.io.scan_source import open_scan_source
+    from lidar3d.sim import LABELS_NAME, read_point_labels, simulate
+
+    labels = read_point_labels(traffic_bag.out_dir)
+    sim = Simulation("city_traffic", duration_s=1.5)
+    with open_scan_source(traffic_bag.bag) as source:
+        scans = list(source)
+    assert len(labels.n_points) == len(scans) == len(sim)
+    for index in (0, len(sim) - 1):
+        simulated = sim.scan(index)
+        np.testing.assert_array_equal(labels.object_id[labels.of_scan(index)], simulated.object_id)
+        np.testing.assert_array_equal(labels.dynamic_mask[labels.of_scan(index)], simulated.dynamic_mask)
+        assert labels.stamps_ns[index] == scans[index].stamp_ns == simulated.scan.stamp_ns
+    assert labels.dynamic_mask.any()
+    metadata = json.loads(traffic_bag.metadata.read_text())
+    assert metadata["files"]["labels"] == LABELS_NAME
+    plain = simulate("city_traffic", tmp_path / "plain", duration_s=1.5)
+    assert plain.labels is None and not (tmp_path / "plain" / LABELS_NAME).exists()
+    assert "labels" not in json.loads(plain.metadata.read_text())["files"]
+    assert plain.bag.read_bytes() == traffic_bag.bag.read_bytes()  # labels change nothing else
+
+
+def test_run_writes_the_static_map_and_the_removed_points_and_keep_dynamic_keeps_all(traffic_bag, tmp_path):
+    from lidar3d.cli.main import main
+    from lidar3d.io.pcd import read_pcd
+    from lidar3d.io.run_folder import RunFolderState, check_run_folder
+    from lidar3d.summary import read_summary
+
+    assert main(["-q", "run", str(traffic_bag.bag), "--out", str(tmp_path / "clean")]) == 0
+    assert main(["-q", "run", str(traffic_bag.bag), "--out", str(tmp_path / "all"), "--keep-dynamic"]) == 0
+    clean, everything = (
+        read_summary(tmp_path / "clean" / "summary.json"),
+        read_summary(tmp_path / "all" / "summary.json"),
+    )
+    assert check_run_folder(tmp_path / "clean").state is RunFolderState.CONSISTENT
+    assert clean.dynamic_points and clean.output("dynamic.pcd").rows == clean.dynamic_points
+    assert everything.dynamic_points is None and not (tmp_path / "all" / "dynamic.pcd").exists()
+    assert "enabled = false" in (tmp_path / "all" / "config.toml").read_text()
+    static, _ = read_pcd(tmp_path / "clean" / "map.pcd")
+    assert len(static) == clean.map_points
+    removed, fields = read_pcd(tmp_path / "clean" / "dynamic.pcd")
+    assert len(removed) == clean.dynamic_points and "intensity" in fields
+    assert clean.map_points < everything.map_points <= clean.map_points + clean.dynamic_points
+    # The trajectories do not depend on the map.
+    assert (tmp_path / "clean" / "trajectory_tum.txt").read_text() == (
+        tmp_path / "all" / "trajectory_tum.txt"
+    ).read_text()

@@ -11,13 +11,15 @@ is tested against the sweeps of a window around it (``window_scans`` before and 
 * the return is nearer (the voxel was occluded), or the pixel holds no return (sky, glass, a
   dropout: absent returns prove nothing), or the ray passes farther away: no evidence.
 
-A voxel is dynamic when at least ``min_misses`` probes saw through it and the misses outnumber the
-hits ``miss_ratio`` times; its points in that sweep are removed from the map. This is ray casting
-done from the voxel's side (one projection per voxel and probe, instead of a walk along every ray),
-so it costs a few array operations per sweep. Thin structures survive because a ray has to pass
-close to the centroid of what was hit (a pole's centroid lies on the pole), the
-ground and surfaces seen at grazing angles because their voxels are hit about as often as rays skim
-past them, and ``ground_band_m`` keeps voxels just above the lowest map points around them.
+A voxel is dynamic when at least ``min_misses`` probes saw through it and by at least ``miss_ratio``
+times as many probes as hit it; its points in that sweep are removed from the map. This is ray
+casting done from the voxel's side (one projection per voxel and probe, instead of a walk along every
+ray), so it costs a few array operations per sweep. Thin structures survive because a ray has to pass
+close to the centroid of what was hit (a pole's centroid lies on the pole); surfaces seen at grazing
+angles because their voxels are hit about as often as rays skim past them; the ground because
+voxels less than ``ground_band_m`` above the lowest point of the 3x3 one-metre cells around them are
+never tested. :func:`outvoted_voxels` is the vote over the whole run that
+:class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
 
 Records: :class:`PlacedSweep` in, :class:`FilteredSweep` out (a window of sweeps later: a sweep is
 decided once the probes after it are known). Frames: world = the map frame; lidar = the sweep's
@@ -282,7 +284,9 @@ class DynamicFilter:
             + [np.bincount(inverse, weights=sweep.intensity, minlength=keys.size), counts]
         )
         centroids = sums[test, :3] / counts[test, None]
-        above = self._ground.height_above(centroids) > config.ground_band_m
+        # The band widens with range: a small tilt error of a pose lifts far ground by metres times it.
+        reach = np.linalg.norm(centroids - sweep.T_world_lidar[:3, 3], axis=1)
+        above = self._ground.height_above(centroids) > config.ground_band_m + config.ground_band_per_m * reach
         test, centroids = test[above], centroids[above]
         offset = self._slot_sweep - index
         slots = np.flatnonzero((offset != 0) & (np.abs(offset) <= config.window_scans))
