@@ -54,10 +54,8 @@ class GridParams:
 @dataclass(frozen=True, slots=True)
 class GroundModel:
     """Local ground height on a coarse grid: per cell the lowest map point, cells without points
-    filled from the nearest cell with one. (A cell under a car keeps the car's underside, about
-    0.25 m up: the car's body above the band's low edge still counts; taking the lowest of the
-    cells around instead lowers the ground of a slope by a cell's rise and lifts the road ahead
-    into the band.)
+    filled from the nearest cell with one, then the lowest of the 3x3 cells around (so a cell under
+    a car, whose lowest point is the car's underside, takes the ground beside it).
 
     Attributes:
         origin_xy_m: (2,) world x, y of the corner of cell (0, 0).
@@ -85,7 +83,7 @@ class GroundModel:
         if empty.any():
             nearest = ndimage.distance_transform_edt(empty, return_distances=False, return_indices=True)
             low = low[tuple(nearest)]
-        return cls(origin, float(cell_m), low)
+        return cls(origin, float(cell_m), ndimage.minimum_filter(low, size=3, mode="nearest"))
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
         """(N,) ground height under (N,2) world x, y (the nearest cell outside the model)."""
