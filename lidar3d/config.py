@@ -30,6 +30,7 @@ else:  # pragma: no cover - exercised on Python 3.10 only
 __all__ = [
     "Choices",
     "Config",
+    "DynamicConfig",
     "FeatureConfig",
     "GeorefConfig",
     "GnssConfig",
@@ -591,6 +592,35 @@ class MotionConfig:
 
 
 @dataclass(frozen=True, slots=True)
+class DynamicConfig:
+    """Dynamic-object removal from the dense map by free-space evidence (:mod:`lidar3d.mapping.free_space`,
+    docs/stages/dynamic-removal.md): a voxel of a sweep that the probes of the window around it saw
+    through is dynamic; its points go to ``dynamic.pcd`` instead of ``map.pcd``."""
+
+    enabled: bool = _key(True, None, "remove points in space later seen through (false: lidar3d run --keep-dynamic)")
+    voxel_m: float = _key(0.2, _positive(5.0, "m"), "voxel of the hit/miss evidence")
+    window_scans: int = _key(30, _closed(1, 10_000), "sweeps before and after a sweep whose rays test its voxels")
+    probe_every: int = _key(3, _closed(1, 1000), "every n-th sweep of the window is a probe")
+    reuse_scans: int = _key(5, _closed(1, 1000), "a voxel tested this few sweeps ago keeps that decision")
+    max_range_m: float = _key(100.0, _positive(1000.0, "m"), "voxels farther from a probe get no evidence from it")
+    pass_tolerance_m: float = _key(0.2, _positive(5.0, "m"), "a ray passes a voxel within this of its centroid")
+    range_margin_m: float = _key(0.4, _positive(10.0, "m"), "a ray sees through when it returns this far beyond")
+    min_misses: int = _key(2, _closed(1, 1000), "a dynamic voxel was seen through by at least this many probes")
+    miss_ratio: float = _key(1.0, _closed(0.0, 1000.0), "... and by this many times more probes than hit it")
+    ground_band_m: float = _key(
+        0.2, _closed(0.0, 10.0, "m"), "voxels this close above the lowest point around them are kept (0: off)"
+    )
+    ground_band_per_m: float = _key(
+        0.01, _closed(0.0, 1.0), "... plus this much per metre of range from their sweep's sensor (pose tilt errors)"
+    )
+    vote_ratio: float = _key(
+        1.0,
+        _closed(0.0, 1000.0),
+        "at the end a map voxel with more dynamic points than this times its static ones moves",
+    )
+
+
+@dataclass(frozen=True, slots=True)
 class Config:
     """The whole configuration."""
 
@@ -605,6 +635,7 @@ class Config:
     loop: LoopConfig = field(default_factory=LoopConfig)
     gnss: GnssConfig = field(default_factory=GnssConfig)
     georef: GeorefConfig = field(default_factory=GeorefConfig)
+    dynamic: DynamicConfig = field(default_factory=DynamicConfig)
 
 
 def key_specs() -> Iterator[tuple[str, tuple[KeySpec, ...]]]:

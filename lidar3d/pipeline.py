@@ -8,8 +8,9 @@ Parts, each owning its state and answering with a record:
   :class:`~lidar3d.mapping.keyframes.Submap` of keyframes the tracker registers against;
 * :class:`~lidar3d.loop.closer.LoopCloser` -> :class:`~lidar3d.loop.closer.LoopUpdate`, which this
   module applies to the scan poses, the submap, the keyframe spacing and the tracker;
-* the dense voxel map, which a settled sweep enters (:meth:`SlamPipeline.rebuild_map` places every
-  scan again after loop closures);
+* the :class:`~lidar3d.mapping.dense_map.DenseMap`, which a settled sweep enters, its moving objects
+  taken out into a map of their own (:meth:`SlamPipeline.rebuild_map` places every scan again
+  after loop closures);
 * :class:`~lidar3d.mapping.health.HealthMonitor`: the health of every scan (ok / degraded / lost)
   from what the tracker concluded;
 * :class:`~lidar3d.run_statistics.RunStatistics`: timings, counters, warnings.
@@ -33,13 +34,12 @@ from lidar3d.features.frontend import STAGES as FRONT_END_STAGES
 from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.records import LoopCandidate
-from lidar3d.mapping.dense_map import add_scan_to_map, build_dense_map
+from lidar3d.mapping.dense_map import DenseMap, build_dense_map
 from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
 from lidar3d.mapping.step_uncertainty import StepUncertainty
 from lidar3d.mapping.sweep import SweepFeatures
 from lidar3d.mapping.tracker import SettledSweep, Tracker
-from lidar3d.mapping.voxel import VoxelMap
 from lidar3d.records import Scan, Trajectory
 from lidar3d.run_statistics import RunStatistics
 from lidar3d.summary import HealthSummary
@@ -85,8 +85,12 @@ class SlamResult:
         keyframes: keyframe poses (stamps of the keyframe scans).
         keyframe_scan_indices: (K,) scan index of each keyframe.
         scan_indices: (N,) scan index (position in the input stream) of each trajectory pose.
-        map_points: (M,3) dense voxel map, world frame.
+        map_points: (M,3) dense voxel map, world frame (the static map when moving objects are removed).
         map_intensity: (M,) mean intensity per voxel.
+        dynamic_points: (D,3) voxel map of the points removed as moving objects, world frame (empty
+            when removal is off: see ``removes_dynamic``).
+        dynamic_intensity: (D,) mean intensity per voxel.
+        removes_dynamic: moving objects were taken out of ``map_points`` (``dynamic.enabled``).
         timings_ms: stage name -> (N,) milliseconds per processed scan.
         counts: named counters (scans, dropped stamps, motion-model scans, degenerate scans...).
         health: the health of every processed scan, in trajectory order.
@@ -105,6 +109,9 @@ class SlamResult:
     scan_indices: np.ndarray
     map_points: np.ndarray
     map_intensity: np.ndarray
+    dynamic_points: np.ndarray
+    dynamic_intensity: np.ndarray
+    removes_dynamic: bool
     timings_ms: dict[str, np.ndarray]
     counts: dict[str, int]
     health: tuple[ScanHealth, ...]
@@ -141,7 +148,7 @@ class SlamPipeline:
         self.health = HealthMonitor(config.health)
         self._step_uncertainty = StepUncertainty(config.motion)
         self.stats = RunStatistics()
-        self._map = VoxelMap(mp.map_voxel_m)
+        self._map = DenseMap(config)
         self._estimates: list[ScanEstimate] = []
         self._n_seen = 0
 
@@ -214,6 +221,7 @@ class SlamPipeline:
         settled = self.tracker.finish()
         if settled is not None:
             self._settle(settled, next_is_keyframe=False)
+        self._map.finish()
 
     def rebuild_map(self, scans: Iterable[Scan]) -> None:
         """Place ``scans`` again with the current poses (after loop closures moved them); scans
@@ -224,11 +232,13 @@ class SlamPipeline:
         """A snapshot of the result so far; changes nothing (``partial`` marks an unfinished run).
 
         Before :meth:`finish`, the last scan is not yet in the map (its deskewing waits for the
-        next scan) and an open motion-model stretch is reported up to the last scan.
+        next scan; with dynamic removal the last ``dynamic.window_scans`` wait for the sweeps after
+        them) and an open motion-model stretch is reported up to the last scan.
         """
         keyframes = self.submap.keyframes
         odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)
-        map_points, map_intensity = self._map.points_and_intensity()
+        map_points, map_intensity = self._map.static.points_and_intensity()
+        dynamic_points, dynamic_intensity = self._map.dynamic.points_and_intensity()
         trajectory = self._trajectory()
         scan_indices = np.array([e.scan_index for e in self._estimates], dtype=np.int64)
         health = tuple(e.health for e in self._estimates)
@@ -243,6 +253,9 @@ class SlamPipeline:
             scan_indices=scan_indices,
             map_points=map_points,
             map_intensity=map_intensity,
+            dynamic_points=dynamic_points,
+            dynamic_intensity=dynamic_intensity,
+            removes_dynamic=self._map.removes_dynamic,
             timings_ms=self.stats.timings_ms(),
             loop_ms_total=self.stats.loop_ms,
             counts=dict(self.stats.counts),
@@ -274,7 +287,7 @@ class SlamPipeline:
                 self.submap.replace_clouds(len(self.submap) - 1, *deskewed.keyframe_clouds(self.config.mapping))
             else:
                 update = self._add_keyframe(latest.scan_index, latest.stamp_ns, settled.T_world_lidar, deskewed)
-        add_scan_to_map(self._map, settled.scan, settled.T_world_lidar, settled.twist, self.config)
+        self._map.add(settled.scan, settled.T_world_lidar, settled.twist)
         return update
 
     def _add_keyframe(

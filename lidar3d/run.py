@@ -98,6 +98,7 @@ def _summary(
         scans_per_s=round(n / runtime_s, 2) if runtime_s > 0 else 0.0,
         stage_ms_median=StageMedians(**{k: round(v, 3) for k, v in stages.items()}),
         map_points=int(len(result.map_points)),
+        dynamic_points=int(len(result.dynamic_points)) if result.removes_dynamic else None,
         loop_closures=int(result.counts.get("loop_closures", 0)),
         loop_candidates=len(result.loop_candidates),
         loop_ms_total=round(result.loop_ms_total, 1),
@@ -122,7 +123,8 @@ class _RunPublisher:
     """Publishes the outputs of one run into its folder, each time as a whole set.
 
     The map is written less often than the trajectories; between its publications the set keeps
-    the last ``map.pcd``, and the summary's ``map_points`` counts the points of that file.
+    the last ``map.pcd`` (and ``dynamic.pcd``), and the summary's ``map_points`` (``dynamic_points``)
+    counts the points of that file.
     """
 
     def __init__(self, out_dir: Path, config: Config) -> None:
@@ -152,11 +154,17 @@ class _RunPublisher:
         keep = [] if self.summary is None else ["config.toml"]
         if with_map:
             rows["map.pcd"] = map_points
+            if result.removes_dynamic:
+                rows["dynamic.pcd"] = len(result.dynamic_points)
         else:
             previous_map = self.summary.output("map.pcd") if self.summary is not None else None
             keep += ["map.pcd"] if previous_map is not None else []
             map_rows = previous_map.rows if previous_map is not None else None
             summary = dataclasses.replace(summary, map_points=map_rows or 0)
+            previous_dynamic = self.summary.output("dynamic.pcd") if self.summary is not None else None
+            keep += ["dynamic.pcd"] if previous_dynamic is not None else []
+            dynamic_rows = previous_dynamic.rows if previous_dynamic is not None else None
+            summary = dataclasses.replace(summary, dynamic_points=dynamic_rows)
 
         def write(staging: Path) -> None:
             if self.summary is None:
@@ -171,6 +179,9 @@ class _RunPublisher:
             if with_map:
                 intensity = result.map_intensity.astype(np.float32)
                 write_pcd(staging / "map.pcd", result.map_points, intensity=intensity)
+                if result.removes_dynamic:
+                    dynamic_intensity = result.dynamic_intensity.astype(np.float32)
+                    write_pcd(staging / "dynamic.pcd", result.dynamic_points, intensity=dynamic_intensity)
             if result.pose_graph_g2o:
                 _write_loop_outputs(staging, result)
 
@@ -450,13 +461,16 @@ def _fuse_gnss(
     )
     with open_scan_source(paths, config) as source:
         voxel_map = build_dense_map(itertools.islice(source, start, start + done), fusion.trajectory, config)
-    map_points, map_intensity = voxel_map.points_and_intensity()
+    map_points, map_intensity = voxel_map.static.points_and_intensity()
+    dynamic_points, dynamic_intensity = voxel_map.dynamic.points_and_intensity()
     fused = dataclasses.replace(
         result,
         trajectory=fusion.trajectory,
         keyframes=fusion.keyframes,
         map_points=map_points,
         map_intensity=map_intensity,
+        dynamic_points=dynamic_points,
+        dynamic_intensity=dynamic_intensity,
     )
     s = fusion.selection
     record = GnssFusionRecord(

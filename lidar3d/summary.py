@@ -526,6 +526,8 @@ class RunSummary:
         input_stats: what reading the input dropped and kept (None until the input was read to its end).
         map_rebuild_s: time to rebuild the dense map after loop closures, seconds, rounded to 1 ms
             (None: no rebuild).
+        dynamic_points: points of ``dynamic.pcd``, the points the dynamic-object removal took out of
+            ``map.pcd`` (None: removal off, ``lidar3d run --keep-dynamic``, or a summary from before it).
         evaluation: the evaluation against a SPAN log (None: not evaluated).
         evaluation_error: why the evaluation failed, one line (None: it did not fail; set by a batch).
         outputs: the manifest of the run folder: every other file of the set, with its size, hash
@@ -553,6 +555,7 @@ class RunSummary:
     health: HealthSummary | None = None
     input_stats: InputStatistics | None = None
     map_rebuild_s: float | None = None
+    dynamic_points: int | None = None
     evaluation: EvaluationSummary | None = None
     evaluation_error: str | None = None
     outputs: tuple[OutputFile, ...] = ()
@@ -590,6 +593,8 @@ class RunSummary:
             data["input_stats"] = self.input_stats.as_dict()
         if self.map_rebuild_s is not None:
             data["map_rebuild_s"] = self.map_rebuild_s
+        if self.dynamic_points is not None:
+            data["dynamic_points"] = self.dynamic_points
         if self.evaluation is not None:
             data["evaluation"] = self.evaluation.as_dict()
         if self.evaluation_error is not None:
@@ -634,6 +639,7 @@ class RunSummary:
             health=obj.optional_record("health", HealthSummary._parse),
             input_stats=obj.optional_record("input_stats", InputStatistics._parse),
             map_rebuild_s=obj.optional_number("map_rebuild_s"),
+            dynamic_points=obj.optional_integer("dynamic_points"),
             evaluation=obj.optional_record("evaluation", EvaluationSummary._parse),
             evaluation_error=obj.optional_text("evaluation_error"),
             outputs=obj.optional_record("outputs", _parse_outputs) or (),

@@ -34,6 +34,7 @@ ADAPTERS_AND_DRIVERS = (
     "lidar3d.batch",
     "lidar3d.export",
     "lidar3d.run",
+    "lidar3d.grid",
     "lidar3d.pipeline",
     "lidar3d.prefetch",
     "lidar3d.sim",

@@ -128,8 +128,18 @@ def example_summary(**changes) -> RunSummary:
             )
         ),
         example_summary(health=HealthSummary(80, 0, 0, 1.0, 0.0)),
+        example_summary(dynamic_points=1234),
     ],
-    ids=["complete", "evaluation-error", "checkpoint", "manifest", "no-associated-pose", "health-lost", "health-ok"],
+    ids=[
+        "complete",
+        "evaluation-error",
+        "checkpoint",
+        "manifest",
+        "no-associated-pose",
+        "health-lost",
+        "health-ok",
+        "dynamic-removal",
+    ],
 )
 def test_json_round_trip_gives_the_same_record_and_text(summary, tmp_path):
     text = summary.to_json()
@@ -152,6 +162,9 @@ def test_json_layout_is_the_one_summary_json_always_had():
     # Optional parts that do not apply are left out, not written as null.
     short = json.loads(example_summary(input_stats=None, map_rebuild_s=None, evaluation=None).to_json())
     assert list(short) == TOP_LEVEL_KEYS
+    with_dynamic = json.loads(example_summary(dynamic_points=7).to_json())
+    assert list(with_dynamic)[-3:] == ["map_rebuild_s", "dynamic_points", "evaluation"]
+    assert with_dynamic["dynamic_points"] == 7
     no_redeskew = dataclasses.replace(example_summary().stage_ms_median, redeskew=None)
     assert "redeskew" not in json.loads(example_summary(stage_ms_median=no_redeskew).to_json())["stage_ms_median"]
 
@@ -166,7 +179,14 @@ def test_a_summary_written_by_run_bag_parses_and_is_rewritten_byte_for_byte(tmp_
     text = (out / "summary.json").read_text()
     summary = read_summary(out / "summary.json")
     assert summary == outcome.summary and summary.to_json() == text
-    assert list(json.loads(text)) == [*TOP_LEVEL_KEYS, "health", "input_stats", "evaluation", "outputs"]
+    assert list(json.loads(text)) == [
+        *TOP_LEVEL_KEYS,
+        "health",
+        "input_stats",
+        "dynamic_points",
+        "evaluation",
+        "outputs",
+    ]
     assert summary.health is not None and summary.health.scans == summary.scans
     assert summary.output("health.csv").rows == summary.scans
     paths = [entry.path for entry in summary.outputs]

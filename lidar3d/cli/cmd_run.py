@@ -13,8 +13,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         help="run SLAM on VLP-16 bag(s): trajectory of every scan and a dense map",
         description=(
             "Run LeGO-LOAM-style SLAM over one recording (several ROS1 split files read as one "
-            "stream). Writes trajectories (TUM, KITTI), map.pcd, summary.json and config.toml; a folder "
-            "holding an earlier run's outputs is refused unless --overwrite is given."
+            "stream). Writes trajectories (TUM, KITTI), map.pcd (the static map: moving objects, found by "
+            "free-space ray casting, go to dynamic.pcd), summary.json and config.toml; a folder holding an "
+            "earlier run's outputs is refused unless --overwrite is given."
         ),
         epilog=(
             "examples:\n"
@@ -22,6 +23,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "  lidar3d run drive_0.bag drive_1.bag --out results/drive --span span.log --extrinsics extrinsics.toml\n"
             "  lidar3d run rosbag2_folder --out results/r2 --topic /velodyne_points --max-scans 500\n"
             "  lidar3d run drive.bag --out results/fused --span span.log --extrinsics ext.toml --gnss-factors\n"
+            "  lidar3d run drive.bag --out results/everything --keep-dynamic\n"
             "\n"
             "With --span the run also writes georef.json (the SLAM frame placed in ENU on WGS84), which\n"
             "'lidar3d export' uses to write the map and trajectory in UTM, EPSG:NNNN, ENU or WGS84."
@@ -41,6 +43,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         choices=("distance", "place", "both"),
         help="loop candidates from the distance gate, place recognition (Scan Context) or both "
         "(default: the config's loop.source, both)",
+    )
+    parser.add_argument(
+        "--keep-dynamic",
+        action="store_true",
+        help="keep moving objects in map.pcd (no dynamic.pcd; config dynamic.enabled = false)",
     )
     parser.add_argument("--span", metavar="LOG", help="NovAtel SPAN log: evaluate the trajectory against it")
     parser.add_argument("--extrinsics", metavar="FILE", help="lidar-to-IMU extrinsic for --span (TOML/YAML)")
@@ -77,6 +84,8 @@ def run(args: argparse.Namespace) -> int:
         config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
     if args.loop_source:
         config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, source=args.loop_source))
+    if args.keep_dynamic:
+        config = dataclasses.replace(config, dynamic=dataclasses.replace(config.dynamic, enabled=False))
     if args.map_voxel is not None:
         try:
             config = config_with(config, {"mapping": {"map_voxel_m": args.map_voxel}})
@@ -118,6 +127,7 @@ def run(args: argparse.Namespace) -> int:
     print(
         f"{s.scans} scans, {s.length_m:.1f} m, {s.runtime_s:.1f} s ({s.scans_per_s:.1f} scans/s), "
         f"{s.keyframes} keyframes, {s.loop_closures} loop closures, {s.map_points} map points"
+        + (f", {s.dynamic_points} dynamic points removed" if s.dynamic_points is not None else "")
     )
     if s.health is not None:
         h = s.health

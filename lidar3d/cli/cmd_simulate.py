@@ -36,6 +36,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             f"scenarios:\n{scenarios}\n\n"
             "example:\n"
             "  lidar3d simulate loop --out sim/loop --seed 1 --duration 30\n"
+            "  lidar3d simulate city_traffic --out sim/city --duration 20 --labels\n"
             "  lidar3d simulate hilly --out sim/hilly --format ros2 --sensor vlp32c"
         ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -66,6 +67,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--sensor", choices=("vlp16", "hdl32e", "vlp32c"), default="vlp16", help="sensor preset (default: vlp16)"
     )
+    parser.add_argument(
+        "--labels",
+        action="store_true",
+        help="also write point_labels.npz: the object id and class every point hit (moving cars, pedestrians...)",
+    )
     parser.add_argument("--overwrite", action="store_true", help="replace the outputs of an earlier run in DIR")
     parser.set_defaults(func=run)
 
@@ -81,8 +87,17 @@ def run(args: argparse.Namespace) -> int:
         bag_format=args.format,
         sensor=args.sensor,
         overwrite=args.overwrite,
+        labels=args.labels,
     )
     print(f"{outputs.n_scans} scans, {outputs.n_points} points -> {outputs.out_dir}")
-    for path in (outputs.bag, outputs.ground_truth, outputs.span_log, outputs.extrinsics, outputs.metadata):
+    written = (
+        outputs.bag,
+        outputs.ground_truth,
+        outputs.span_log,
+        outputs.extrinsics,
+        outputs.metadata,
+        outputs.labels,
+    )
+    for path in (p for p in written if p is not None):
         print(f"  {path}")
     return 0

@@ -1,6 +1,6 @@
 """A run folder as one consistent set: publication by staging and renames, completion after a kill, checks.
 
-A run folder holds the outputs of one run (trajectories, ``health.csv``, ``map.pcd``, loop outputs,
+A run folder holds the outputs of one run (trajectories, ``health.csv``, ``map.pcd``, ``dynamic.pcd``, loop outputs,
 ``config.toml``, ``eval/``) and ``summary.json``, whose manifest (:attr:`lidar3d.summary.RunSummary.outputs`) names
 every other file of the set with its size, SHA-256 and rows. :func:`publish_set` replaces the whole
 set in three steps:
@@ -69,6 +69,7 @@ RUN_OUTPUT_NAMES = (
     "map.pcd",
     "georef.json",
     "trajectory_lidar_only_tum.txt",
+    "dynamic.pcd",
     "loops.csv",
     "pose_graph.g2o",
     "trajectory_loops.png",
@@ -236,6 +237,8 @@ def _expected_rows(summary: RunSummary) -> dict[str, int]:
     )
     expected.update({"keyframes_tum.txt": summary.keyframes, "map.pcd": summary.map_points})
     expected["loops.csv"] = summary.loop_candidates
+    if summary.dynamic_points is not None:
+        expected["dynamic.pcd"] = summary.dynamic_points
     return expected
 
 

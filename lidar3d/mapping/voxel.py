@@ -75,6 +75,16 @@ class VoxelMap:
         if self._pending_points >= self._merge_every:
             self._merge()
 
+    def insert_grouped(self, keys: np.ndarray, sums: np.ndarray) -> None:
+        """Add points already grouped by voxel of this map's size: (V,) unique ``keys`` and (V,5) per
+        voxel the sums of x, y, z, intensity and the count (as :meth:`insert` reduces a scan)."""
+        if len(keys) == 0:
+            return
+        self._pending.append((keys, sums))
+        self._pending_points += keys.size
+        if self._pending_points >= self._merge_every:
+            self._merge()
+
     def _merge(self) -> None:
         if not self._pending:
             return
@@ -102,3 +112,24 @@ class VoxelMap:
             return np.zeros((0, 3)), np.zeros(0)
         count = self._count[:, None].astype(np.float64)
         return self._sum_xyz / count, self._sum_intensity / count[:, 0]
+
+    def voxel_counts(self) -> tuple[np.ndarray, np.ndarray]:
+        """(M,) sorted voxel keys (:func:`voxel_keys`) and (M,) points that fell into each."""
+        self._merge()
+        return self._keys.copy(), self._count.copy()
+
+    def move_voxels(self, keys: np.ndarray, other: VoxelMap) -> None:
+        """Move the voxels ``keys`` (those present) with all their points into ``other`` (same voxel size)."""
+        self._merge()
+        if other.voxel_m != self.voxel_m:
+            raise ValueError("voxel maps of different voxel sizes")
+        moving = np.isin(self._keys, keys)
+        if not moving.any():
+            return
+        data = np.column_stack([self._sum_xyz, self._sum_intensity, self._count])
+        other._pending.append((self._keys[moving], data[moving]))
+        other._pending_points += int(moving.sum())
+        other._merge()
+        stay = ~moving
+        self._keys, self._sum_xyz = self._keys[stay], self._sum_xyz[stay]
+        self._sum_intensity, self._count = self._sum_intensity[stay], self._count[stay]

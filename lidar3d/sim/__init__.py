@@ -20,7 +20,15 @@ Open3D is imported only when the first scan is ray cast.
 
 from lidar3d.sim.actors import Traffic, TrafficParams
 from lidar3d.sim.lidar import LidarParams, SimulatedScan, StampMode
-from lidar3d.sim.output import BagFormat, SimulationOutputs, simulate, write_simulation
+from lidar3d.sim.output import (
+    LABELS_NAME,
+    BagFormat,
+    PointLabels,
+    SimulationOutputs,
+    read_point_labels,
+    simulate,
+    write_simulation,
+)
 from lidar3d.sim.rig import RigParams
 from lidar3d.sim.scenarios import DEFAULT_SCENARIO, SCENARIOS, Scenario, get_scenario
 from lidar3d.sim.simulation import DEFAULT_START_TIME_NS, Simulation
@@ -33,6 +41,7 @@ __all__ = [
     "DEFAULT_SCENARIO",
     "DEFAULT_START_TIME_NS",
     "DYNAMIC_CLASSES",
+    "LABELS_NAME",
     "SCENARIOS",
     "BagFormat",
     "BlockKind",
@@ -40,6 +49,7 @@ __all__ = [
     "GeoOrigin",
     "LidarParams",
     "ObjectClass",
+    "PointLabels",
     "RevisitPair",
     "RigParams",
     "RouteParams",
@@ -56,6 +66,7 @@ __all__ = [
     "World",
     "WorldParams",
     "get_scenario",
+    "read_point_labels",
     "simulate",
     "write_simulation",
 ]

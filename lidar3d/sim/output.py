@@ -12,7 +12,12 @@ complete folder):
 ``extrinsics.toml``          ``T_imu_lidar`` (lidar pose in the SPAN vehicle frame)
 ``metadata.json``            scenario, seed, sensor, counts, length, duration, stamps, stops, origin,
                              revisits, world (triangles, objects, glass, moving actors), parameters
+``point_labels.npz``         only with ``labels=True`` (``lidar3d simulate --labels``): what every point
+                             of the bag hit, in bag order (:func:`read_point_labels`); ``metadata.json``
+                             then names it under ``files.labels``
 ===========================  ==========================================================================
+
+Without labels the folder is byte for byte what it always was.
 """
 
 from __future__ import annotations
@@ -38,9 +43,18 @@ from lidar3d.sim.scenarios import DEFAULT_SCENARIO, Scenario
 from lidar3d.sim.simulation import Simulation
 from lidar3d.sim.span import SpanParams
 from lidar3d.sim.trajectory import group_revisits
-from lidar3d.sim.world import ObjectClass
+from lidar3d.sim.world import DYNAMIC_CLASSES, ObjectClass
 
-__all__ = ["OUTPUT_NAMES", "BagFormat", "SimulationOutputs", "simulate", "write_simulation"]
+__all__ = [
+    "LABELS_NAME",
+    "OUTPUT_NAMES",
+    "BagFormat",
+    "PointLabels",
+    "SimulationOutputs",
+    "read_point_labels",
+    "simulate",
+    "write_simulation",
+]
 
 logger = logging.getLogger(__name__)
 
@@ -52,6 +66,7 @@ OUTPUT_NAMES = {
     "extrinsics": "extrinsics.toml",
     "metadata": "metadata.json",
 }
+LABELS_NAME = "point_labels.npz"
 
 
 class BagFormat(str, Enum):
@@ -82,6 +97,58 @@ class SimulationOutputs:
     metadata: Path
     n_scans: int
     n_points: int
+    labels: Path | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class PointLabels:
+    """What every point of a simulated bag hit (``point_labels.npz``), in bag order.
+
+    Attributes:
+        stamps_ns: (S,) header stamp of each scan.
+        n_points: (S,) points of each scan (the labels of scan k follow those of scans 0..k-1).
+        object_id: (N,) int32 object each point hit (0 = ground; ids after the world's objects are moving actors).
+        object_class: (N,) uint8 :class:`~lidar3d.sim.world.ObjectClass` of that object.
+    """
+
+    stamps_ns: np.ndarray
+    n_points: np.ndarray
+    object_id: np.ndarray
+    object_class: np.ndarray
+
+    @property
+    def dynamic_mask(self) -> np.ndarray:
+        """(N,) bool: the point lies on a moving car or a pedestrian."""
+        return np.isin(self.object_class, [int(c) for c in DYNAMIC_CLASSES])
+
+    def of_scan(self, index: int) -> slice:
+        """The slice of the labels of scan ``index``."""
+        start = int(self.n_points[:index].sum())
+        return slice(start, start + int(self.n_points[index]))
+
+
+def read_point_labels(path: str | Path) -> PointLabels:
+    """Read a ``point_labels.npz`` (or the folder holding one).
+
+    Raises:
+        OutputError: missing, unreadable, or its arrays do not fit together (one line).
+    """
+    path = Path(path)
+    if path.is_dir():
+        path = path / LABELS_NAME
+    try:
+        with np.load(path) as data:
+            labels = PointLabels(data["stamps_ns"], data["n_points"], data["object_id"], data["object_class"])
+    except (OSError, KeyError, ValueError) as err:
+        raise OutputError(f"{path}: not a point label file ({err})") from None
+    n = int(labels.n_points.sum())
+    if (
+        labels.object_id.shape != (n,)
+        or labels.object_class.shape != (n,)
+        or labels.stamps_ns.shape != labels.n_points.shape
+    ):
+        raise OutputError(f"{path}: the label arrays do not fit together")
+    return labels
 
 
 def _jsonable(value):
@@ -208,8 +275,10 @@ def write_simulation(
     *,
     bag_format: str | BagFormat = BagFormat.ROS1,
     overwrite: bool = False,
+    labels: bool = False,
 ) -> SimulationOutputs:
-    """Generate every scan of ``sim`` and write the output folder.
+    """Generate every scan of ``sim`` and write the output folder (with ``labels``, also
+    ``point_labels.npz``: what each point hit).
 
     Raises:
         OutputError: the folder already holds a simulation and ``overwrite`` is false, or a file
@@ -232,11 +301,14 @@ def write_simulation(
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
     n_points = 0
+    label_parts: list[tuple[int, np.ndarray, np.ndarray]] = []
 
     def counted():
         nonlocal n_points
         for simulated in sim.scans():
             n_points += len(simulated.scan)
+            if labels:
+                label_parts.append((simulated.scan.stamp_ns, simulated.object_id, simulated.object_class))
             if simulated.index % 100 == 0:
                 logger.debug("scan %d / %d", simulated.index, len(sim))
             yield simulated.scan
@@ -254,6 +326,11 @@ def write_simulation(
     write_bytes_atomic(paths["span_log"], "".join(sim.span_log_lines()).encode("ascii"))
     write_extrinsic(paths["extrinsics"], sim.T_imu_lidar)
     metadata = _metadata(sim, fmt, n_points)
+    labels_path = None
+    if labels:
+        labels_path = out / LABELS_NAME
+        _write_labels(labels_path, label_parts)
+        metadata["files"]["labels"] = LABELS_NAME
     write_text_atomic(paths["metadata"], json.dumps(metadata, indent=1) + "\n")
     logger.info("wrote %s (%d scans, %d points)", out, len(sim), n_points)
     return SimulationOutputs(
@@ -265,7 +342,22 @@ def write_simulation(
         metadata=paths["metadata"],
         n_scans=len(sim),
         n_points=n_points,
+        labels=labels_path,
     )
+
+
+def _write_labels(path: Path, parts: list[tuple[int, np.ndarray, np.ndarray]]) -> None:
+    import io
+
+    buffer = io.BytesIO()
+    np.savez_compressed(
+        buffer,
+        stamps_ns=np.array([stamp for stamp, _, _ in parts], dtype=np.int64),
+        n_points=np.array([len(ids) for _, ids, _ in parts], dtype=np.int64),
+        object_id=np.concatenate([ids for _, ids, _ in parts]).astype(np.int32) if parts else np.zeros(0, np.int32),
+        object_class=np.concatenate([c for _, _, c in parts]).astype(np.uint8) if parts else np.zeros(0, np.uint8),
+    )
+    write_bytes_atomic(path, buffer.getvalue())
 
 
 def simulate(
@@ -280,8 +372,10 @@ def simulate(
     lidar: LidarParams | None = None,
     span: SpanParams | None = None,
     rig: RigParams | None = None,
+    labels: bool = False,
 ) -> SimulationOutputs:
-    """Simulate ``scenario`` and write its folder; the library twin of ``lidar3d simulate``.
+    """Simulate ``scenario`` and write its folder; the library twin of ``lidar3d simulate``
+    (``labels``: also ``point_labels.npz``, what each point hit).
 
     Example:
         >>> outputs = simulate("loop", "out/loop", seed=0, duration_s=20.0)  # doctest: +SKIP
@@ -289,4 +383,4 @@ def simulate(
         PosixPath('out/loop/scans.bag')
     """
     sim = Simulation(scenario, seed=seed, duration_s=duration_s, sensor=sensor, lidar=lidar, span=span, rig=rig)
-    return write_simulation(sim, out_dir, bag_format=bag_format, overwrite=overwrite)
+    return write_simulation(sim, out_dir, bag_format=bag_format, overwrite=overwrite, labels=labels)

@@ -177,6 +177,14 @@ class Simulation:
         actors = None if self.traffic is None else self.traffic.posed_at(t_s, poses[:, :3, 3], lidar.max_range_m)
         return lidar.cast(index, stamp_ns, poses, rng, self.T_world_lidar_at(stamp_ns)[0], actors)
 
+    def points_world(self, simulated: SimulatedScan) -> np.ndarray:
+        """(N,3) the points of ``simulated`` placed exactly in the world frame: each with the true
+        lidar pose at its column's firing time (the oracle of a map built from exact poses)."""
+        lidar = self.lidar
+        t_s = simulated.index * self.scan_period_ns * 1e-9 + self._route_lead_s + lidar.column_time_s
+        poses = (self.motion.pose_at(t_s) @ self.T_imu_lidar)[simulated.column]
+        return np.einsum("nij,nj->ni", poses[:, :3, :3], simulated.scan.points) + poses[:, :3, 3]
+
     def scans(self, start: int = 0, stop: int | None = None) -> Iterator[SimulatedScan]:
         """Simulate sweeps ``start`` to ``stop - 1`` lazily, in order."""
         stop = len(self) if stop is None else min(stop, len(self))

@@ -1,0 +1,173 @@
+"""``grid_run``: a ROS map_server occupancy grid of a finished run (library twin of ``lidar3d grid``).
+
+The run folder gives the poses (``trajectory_tum.txt``), the configuration (``config.toml``), the
+local ground (the lowest points of ``map.pcd``, see :class:`~lidar3d.mapping.occupancy_grid.GroundModel`)
+and the moving objects to leave out (the voxels of ``dynamic.pcd``); the scans are read again from
+the run's input bag(s) (``summary.json`` ``inputs``), each deskewed with the motion to the next pose
+as the map was, and ray cast into the grid (:class:`~lidar3d.mapping.occupancy_grid.OccupancyGridBuilder`).
+Outputs in the output folder: ``map.yaml`` + ``map.pgm`` (map_server) and ``map.png`` (preview).
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from lidar3d.config import load_config
+from lidar3d.errors import BagError, ConfigError, OutputError
+from lidar3d.io.map_server import trinary_image, write_map_server
+from lidar3d.io.pcd import read_pcd
+from lidar3d.io.run_folder import read_run_folder
+from lidar3d.io.scan_source import open_scan_source
+from lidar3d.io.trajectory_io import read_tum
+from lidar3d.mapping.deskew import deskew_scan, twist_between
+from lidar3d.mapping.occupancy_grid import GridParams, GroundModel, OccupancyGrid, OccupancyGridBuilder
+from lidar3d.mapping.se3 import transform_points
+from lidar3d.mapping.voxel import voxel_keys
+
+__all__ = ["GridOutcome", "check_grid_options", "grid_run"]
+
+log = logging.getLogger(__name__)
+
+YAML_NAME = "map.yaml"
+PREVIEW_NAME = "map.png"
+
+
+@dataclass(frozen=True, slots=True)
+class GridOutcome:
+    """What :func:`grid_run` produced.
+
+    Attributes:
+        grid: the occupancy grid (log-odds per cell).
+        yaml: the map_server YAML; ``pgm`` its image; ``png`` the preview.
+        scans: scans ray cast into the grid.
+        partial: the run folder holds a partial run (stopped before the end of its input).
+        dynamic_points_left_out: scan points left out as moving objects (in ``dynamic.pcd`` voxels).
+        runtime_s: wall time.
+    """
+
+    grid: OccupancyGrid
+    yaml: Path
+    pgm: Path
+    png: Path
+    scans: int
+    partial: bool
+    dynamic_points_left_out: int
+    runtime_s: float
+
+
+def check_grid_options(resolution_m: float, band_m: tuple[float, float]) -> GridParams:
+    """The grid parameters of the options, or :class:`ConfigError` (one line) when they are unusable."""
+    if not resolution_m > 0 or not np.isfinite(resolution_m):
+        raise ConfigError(f"--resolution must be > 0 m, got {resolution_m:g}")
+    low, high = band_m
+    if not (np.isfinite(low) and np.isfinite(high)):
+        raise ConfigError(f"--band must be two finite heights, got {low:g} {high:g}")
+    if low == high:
+        raise ConfigError(f"--band {low:g} {high:g} is empty: LOW must be below HIGH")
+    if low > high:
+        raise ConfigError(f"--band {low:g} {high:g} is inverted: LOW must be below HIGH")
+    return GridParams(resolution_m=float(resolution_m), band_m=(float(low), float(high)))
+
+
+def grid_run(
+    run_dir: str | Path,
+    out_dir: str | Path,
+    *,
+    resolution_m: float = 0.1,
+    band_m: tuple[float, float] = (0.3, 2.0),
+    on_scan: Callable[[int, int | None], None] | None = None,
+) -> GridOutcome:
+    """Grid the run in ``run_dir`` into ``out_dir`` (see the module docstring).
+
+    Args:
+        resolution_m: cell side.
+        band_m: (low, high) heights above the local ground that hold obstacles.
+        on_scan: called as ``on_scan(done, total)`` after each scan (progress display).
+
+    Raises:
+        ConfigError: a resolution <= 0, an empty or inverted band.
+        OutputError: ``run_dir`` is not a consistent run folder, or its map is empty.
+        BagError: the run's input bag cannot be read.
+    """
+    params = check_grid_options(resolution_m, band_m)
+    t0 = time.perf_counter()
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise OutputError(f"{run}: not a run folder (no such folder)")
+    summary = read_run_folder(run)
+    if summary.partial:
+        log.warning("%s: a partial run (stopped after %d scans): gridding the scans it has", run, summary.scans)
+    config = load_config(run / "config.toml")
+    trajectory = read_tum(run / "trajectory_tum.txt")
+    map_points, _ = read_pcd(run / "map.pcd")
+    if not len(map_points) or not len(trajectory):
+        raise OutputError(f"{run}: the run has no map points or no poses: nothing to grid")
+    dynamic_keys = np.zeros(0, np.int64)
+    if summary.output("dynamic.pcd") is not None:
+        dynamic_points, _ = read_pcd(run / "dynamic.pcd")
+        dynamic_keys = np.unique(voxel_keys(dynamic_points, config.mapping.map_voxel_m))
+    ground = GroundModel.from_points(map_points)
+    positions = trajectory.positions_m
+    reach = params.max_range_m
+    bounds = np.array([positions[:, :2].min(axis=0) - reach, positions[:, :2].max(axis=0) + reach])
+    builder = OccupancyGridBuilder(params, ground, bounds)
+    inputs = [_input_path(run, p) for p in summary.inputs]
+    stamps, poses = trajectory.stamps_ns, trajectory.T_world_lidar
+    model = config.sensor.resolved_model
+    n_scans = n_left_out = 0
+    with open_scan_source(inputs, config) as source:
+        for scan in source:
+            if scan.stamp_ns > stamps[-1]:
+                break
+            i = int(np.searchsorted(stamps, scan.stamp_ns))
+            if stamps[i] != scan.stamp_ns:
+                continue
+            a, b = (i, i + 1) if i + 1 < len(stamps) else (max(i - 1, 0), i)
+            twist = twist_between(poses[a], poses[b], (stamps[b] - stamps[a]) * 1e-9) if a != b else np.zeros(6)
+            final = deskew_scan(scan, twist)
+            r = np.linalg.norm(final.points, axis=1)
+            keep = (r >= config.sensor.min_range_m) & (r <= model.max_range_m)
+            points = transform_points(poses[i], final.points[keep])
+            if dynamic_keys.size:
+                keys = voxel_keys(points, config.mapping.map_voxel_m)
+                at = np.minimum(np.searchsorted(dynamic_keys, keys), dynamic_keys.size - 1)
+                moving = dynamic_keys[at] == keys
+                n_left_out += int(moving.sum())
+                points = points[~moving]
+            builder.add(poses[i][:3, 3], points)
+            n_scans += 1
+            if on_scan is not None:
+                on_scan(n_scans, len(stamps))
+    grid = builder.grid()
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise OutputError(f"{out}: cannot create output folder: {err.strerror or err}") from err
+    probability = np.where(grid.observed, grid.probability, 0.5)
+    image = trinary_image(probability)
+    pgm = write_map_server(out / YAML_NAME, image, params.resolution_m, grid.origin_xy_m)
+    from lidar3d.export.grid_preview import write_grid_preview
+
+    title = f"{run.name}: occupancy {params.band_m[0]:g}-{params.band_m[1]:g} m above ground, {params.resolution_m:g} m"
+    png = write_grid_preview(
+        out / PREVIEW_NAME, image, params.resolution_m, grid.origin_xy_m, positions[:, :2], title=title
+    )
+    return GridOutcome(grid, out / YAML_NAME, pgm, png, n_scans, summary.partial, n_left_out, time.perf_counter() - t0)
+
+
+def _input_path(run: Path, recorded: str) -> Path:
+    """The run's input as recorded, else relative to the run folder; :class:`BagError` when neither exists."""
+    path = Path(recorded)
+    if path.exists():
+        return path
+    beside = run / recorded
+    if not path.is_absolute() and beside.exists():
+        return beside
+    raise BagError(f"{recorded}: input of the run in {run} not found (lidar3d grid reads its scans again)")

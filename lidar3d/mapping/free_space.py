@@ -1,0 +1,368 @@
+"""Dynamic-object removal by free-space evidence: points in space that other sweeps see through.
+
+Every sweep that enters the map is voxelised (``DynamicConfig.voxel_m``). Each of its occupied voxels
+is tested against the sweeps of a window around it (``window_scans`` before and after, every
+``probe_every``-th one: the *probes*): the voxel's centroid is projected into the probe's range image
+(ring by elevation, column by azimuth) and the return in that pixel is compared with it:
+
+* the probe's ray passes within ``pass_tolerance_m`` of the centroid and returns at least
+  ``range_margin_m`` beyond it: the probe saw **through** the voxel (a miss);
+* the ray passes within that tolerance and returns within the margin of it: a **hit**;
+* the return is nearer (the voxel was occluded), or the pixel holds no return (sky, glass, a
+  dropout: absent returns prove nothing), or the ray passes farther away: no evidence.
+
+A voxel is dynamic when at least ``min_misses`` probes saw through it and by at least ``miss_ratio``
+times as many probes as hit it; its points in that sweep are removed from the map. This is ray
+casting done from the voxel's side (one projection per voxel and probe, instead of a walk along every
+ray), so it costs a few array operations per sweep. Thin structures survive because a ray has to pass
+close to the centroid of what was hit (a pole's centroid lies on the pole); surfaces seen at grazing
+angles because their voxels are hit about as often as rays skim past them; the ground because
+voxels less than ``ground_band_m`` above the lowest point of the 3x3 one-metre cells around them are
+never tested. :func:`outvoted_voxels` is the vote over the whole run that
+:class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
+
+Records: :class:`PlacedSweep` in, :class:`FilteredSweep` out (a window of sweeps later: a sweep is
+decided once the probes after it are known). Frames: world = the map frame; lidar = the sweep's
+deskewed lidar frame at its stamp.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from lidar3d.config import DynamicConfig
+from lidar3d.mapping.voxel import voxel_keys
+
+__all__ = [
+    "DynamicFilter",
+    "FilteredSweep",
+    "PlacedSweep",
+    "ProbeStack",
+    "SweepProbe",
+    "outvoted_voxels",
+    "voxel_evidence",
+]
+
+_GROUND_CELL_M = 1.0  # cell of the local ground height (lowest point of the 3x3 cells around)
+_NEIGHBOUR_SHIFTS = tuple((di << 32) + dj for di in (-1, 0, 1) for dj in (-1, 0, 1))
+
+
+@dataclass(frozen=True, slots=True)
+class PlacedSweep:
+    """One deskewed sweep with its final pose.
+
+    Attributes:
+        points_lidar: (N,3) float64 metres, lidar frame at the stamp (deskewed, within range).
+        points_world: (N,3) the same points in the world (map) frame.
+        ring: (N,) laser index (0 = lowest beam).
+        intensity: (N,) float32.
+        T_world_lidar: (4,4) pose of that lidar frame in the world frame.
+    """
+
+    points_lidar: np.ndarray
+    points_world: np.ndarray
+    ring: np.ndarray
+    intensity: np.ndarray
+    T_world_lidar: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class FilteredSweep:
+    """A sweep decided: its world points and which of them lie in space seen through, also grouped
+    by voxel (``DynamicConfig.voxel_m``) as a voxel map takes them.
+
+    Attributes:
+        points_world: (N,3) float64 metres, world frame.
+        intensity: (N,) float32.
+        dynamic: (N,) bool, the point lies in a voxel other sweeps saw through.
+        voxel_keys: (V,) sorted keys (:func:`~lidar3d.mapping.voxel.voxel_keys`) of the sweep's voxels.
+        voxel_sums: (V,5) per voxel the sums of x, y, z and intensity of its points, and their count.
+        voxel_dynamic: (V,) bool, the voxel is dynamic (``dynamic`` is this per point).
+    """
+
+    points_world: np.ndarray
+    intensity: np.ndarray
+    dynamic: np.ndarray
+    voxel_keys: np.ndarray
+    voxel_sums: np.ndarray
+    voxel_dynamic: np.ndarray
+
+
+@dataclass(frozen=True, slots=True)
+class SweepProbe:
+    """The range image of one sweep, as free-space evidence for the voxels of others.
+
+    Attributes:
+        origin_m: (3,) sensor position, world frame.
+        R_world_lidar: (3,3) sensor orientation.
+        points_lidar: (rings, bins, 3) float32 nearest return per pixel, lidar frame (0 where none).
+        range_m: (rings, bins) float32 its range, 0 where the pixel holds no return.
+    """
+
+    origin_m: np.ndarray
+    R_world_lidar: np.ndarray
+    points_lidar: np.ndarray
+    range_m: np.ndarray
+
+    @classmethod
+    def of(cls, sweep: PlacedSweep, n_rings: int, n_bins: int) -> SweepProbe:
+        """The probe of ``sweep``: each point into pixel (ring, azimuth bin), the nearest one kept."""
+        points = sweep.points_lidar
+        range_m = np.linalg.norm(points, axis=1)
+        column = _azimuth_bin(points, n_bins)
+        pixel = sweep.ring.astype(np.int64) * n_bins + column
+        order = np.argsort(-range_m, kind="stable")  # nearest written last wins
+        image_points = np.zeros((n_rings * n_bins, 3), np.float32)
+        image_range = np.zeros(n_rings * n_bins, np.float32)
+        image_points[pixel[order]] = points[order]
+        image_range[pixel[order]] = range_m[order]
+        T = sweep.T_world_lidar
+        return cls(
+            T[:3, 3].copy(),
+            T[:3, :3].copy(),
+            image_points.reshape(n_rings, n_bins, 3),
+            image_range.reshape(n_rings, n_bins),
+        )
+
+
+def _azimuth_bin(points: np.ndarray, n_bins: int) -> np.ndarray:
+    azimuth = np.arctan2(points[:, 1], points[:, 0])
+    return (np.floor((azimuth + np.pi) * (n_bins / (2.0 * np.pi))).astype(np.int64)) % n_bins
+
+
+class ProbeStack:
+    """Probes held in fixed slots of stacked arrays, so that voxels are tested against many probes
+    in one pass (see :func:`voxel_evidence`).
+
+    Args:
+        n_slots: probes held at most; ``n_rings``, ``n_bins``: their image size.
+    """
+
+    def __init__(self, n_slots: int, n_rings: int, n_bins: int) -> None:
+        self.origin_m = np.zeros((n_slots, 3))
+        self.R_world_lidar = np.tile(np.eye(3), (n_slots, 1, 1))
+        self.points_lidar = np.zeros((n_slots, n_rings, n_bins, 3), np.float32)
+        self.range_m = np.zeros((n_slots, n_rings, n_bins), np.float32)
+
+    @classmethod
+    def of(cls, probes: list[SweepProbe]) -> ProbeStack:
+        """A stack holding ``probes`` in slots 0, 1, ..."""
+        n_rings, n_bins = probes[0].range_m.shape if probes else (1, 1)
+        stack = cls(len(probes), n_rings, n_bins)
+        for slot, probe in enumerate(probes):
+            stack.put(slot, probe)
+        return stack
+
+    def put(self, slot: int, probe: SweepProbe) -> None:
+        """Hold ``probe`` in ``slot`` (replacing the one there)."""
+        self.origin_m[slot] = probe.origin_m
+        self.R_world_lidar[slot] = probe.R_world_lidar
+        self.points_lidar[slot] = probe.points_lidar
+        self.range_m[slot] = probe.range_m
+
+
+def voxel_evidence(
+    centroids_world: np.ndarray,
+    stack: ProbeStack,
+    slots: np.ndarray,
+    elevation_rad: np.ndarray,
+    config: DynamicConfig,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Hits and misses of each voxel centroid over the probes in ``slots`` of ``stack`` (see the
+    module docstring).
+
+    Args:
+        centroids_world: (V,3) voxel centroids, world frame.
+        stack: the probes; ``slots``: (P,) which of them to use.
+        elevation_rad: (rings,) ascending beam elevations of the sensor.
+
+    Returns:
+        (V,) int hits and (V,) int misses.
+    """
+    n_voxels = len(centroids_world)
+    slots = np.asarray(slots, dtype=np.int64)
+    if not n_voxels or not slots.size:
+        return np.zeros(n_voxels, np.int64), np.zeros(n_voxels, np.int64)
+    _, n_rings, n_bins = stack.range_m.shape
+    # Ring of the nearest elevation: the boundaries halfway between neighbouring beams, as sines.
+    sin_boundaries = np.sin(0.5 * (elevation_rad[1:] + elevation_rad[:-1]))
+    margin = config.range_margin_m
+    # (P, V, 3) every centroid in every probe's lidar frame: R^T (c - o).
+    local = np.matmul(centroids_world[None] - stack.origin_m[slots, None], stack.R_world_lidar[slots]).reshape(-1, 3)
+    x, y, z = local[:, 0], local[:, 1], local[:, 2]
+    rho = np.sqrt(x * x + y * y + z * z)
+    ring = np.searchsorted(sin_boundaries, z / np.maximum(rho, 1e-9))
+    column = (np.floor((np.arctan2(y, x) + np.pi) * (n_bins / (2.0 * np.pi))).astype(np.int64)) % n_bins
+    pixel = (np.repeat(slots, n_voxels) * n_rings + ring) * n_bins + column
+    # Whole-array arithmetic with 1-D gathers (cheaper than selecting rows first).
+    return_m = stack.range_m.reshape(-1)[pixel].astype(np.float64)
+    flat = stack.points_lidar.reshape(-1)
+    along = (x * flat[3 * pixel] + y * flat[3 * pixel + 1] + z * flat[3 * pixel + 2]) / np.maximum(return_m, 1e-9)
+    passes = (return_m > 0.0) & (rho > margin) & (rho <= config.max_range_m)
+    passes &= rho * rho - along * along < config.pass_tolerance_m**2
+    voxel = np.tile(np.arange(n_voxels), slots.size)
+    misses = np.bincount(voxel[passes & (return_m > along + margin)], minlength=n_voxels)
+    hits = np.bincount(voxel[passes & (np.abs(return_m - along) <= margin)], minlength=n_voxels)
+    return hits, misses
+
+
+def outvoted_voxels(
+    static_keys: np.ndarray,
+    static_counts: np.ndarray,
+    dynamic_keys: np.ndarray,
+    dynamic_counts: np.ndarray,
+    vote_ratio: float,
+) -> np.ndarray:
+    """The map voxels (sorted keys) holding more than ``vote_ratio`` times as many points judged
+    dynamic as points judged static, over the whole run (each key array sorted and unique)."""
+    _, in_static, in_dynamic = np.intersect1d(static_keys, dynamic_keys, assume_unique=True, return_indices=True)
+    outvoted = dynamic_counts[in_dynamic] > vote_ratio * static_counts[in_static]
+    return static_keys[in_static[outvoted]]
+
+
+class DynamicFilter:
+    """Decides each sweep against the probes of a window around it; call :meth:`add` per sweep in
+    time order, then :meth:`flush`.
+
+    A voxel keeps its decision for the next ``reuse_scans`` sweeps, ``window_scans`` when it was
+    clearly static (hit by at least two probes, seen through by none): static structure is seen again
+    by every sweep, and only the voxels new to the view, or whose decision ran out, are tested.
+
+    Args:
+        config: the ``[dynamic]`` section.
+        elevation_deg: the sensor's ascending beam elevations (index = ring).
+        n_columns: the sensor's azimuth cells per sweep (the probes' columns).
+    """
+
+    def __init__(self, config: DynamicConfig, elevation_deg: tuple[float, ...], n_columns: int) -> None:
+        self.config = config
+        self._elevation_rad = np.deg2rad(np.asarray(elevation_deg, dtype=np.float64))
+        self._n_bins = int(n_columns)
+        self._sweeps: deque[tuple[int, PlacedSweep]] = deque()
+        self._probe_slots = 2 * (config.window_scans // config.probe_every) + 3
+        self._stack = ProbeStack(self._probe_slots, len(self._elevation_rad), self._n_bins)
+        self._slot_sweep = np.full(self._probe_slots, -(10**9), np.int64)  # sweep index of each slot's probe
+        self._n_probes = 0
+        # (sorted voxel keys, dynamic flags, last sweep index each decision holds for) of recent sweeps
+        self._recent: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=config.reuse_scans)
+        self._ground = _GroundGrid()
+        self._n_added = 0
+
+    def add(self, sweep: PlacedSweep) -> list[FilteredSweep]:
+        """Take the next sweep; returns the sweeps whose window is now complete (oldest first)."""
+        index = self._n_added
+        self._n_added += 1
+        self._sweeps.append((index, sweep))
+        if index % self.config.probe_every == 0:
+            self._ground.note(sweep.points_world)
+            slot = self._n_probes % self._probe_slots
+            self._stack.put(slot, SweepProbe.of(sweep, len(self._elevation_rad), self._n_bins))
+            self._slot_sweep[slot] = index
+            self._n_probes += 1
+        decided = []
+        while self._sweeps and self._sweeps[0][0] + self.config.window_scans <= index:
+            decided.append(self._decide())
+        return decided
+
+    def flush(self) -> list[FilteredSweep]:
+        """End of input: decide the sweeps still waiting (their window ends early)."""
+        return [self._decide() for _ in range(len(self._sweeps))]
+
+    def _decide(self) -> FilteredSweep:
+        index, sweep = self._sweeps.popleft()
+        config = self.config
+        points = sweep.points_world
+        keys, inverse, counts = np.unique(voxel_keys(points, config.voxel_m), return_inverse=True, return_counts=True)
+        dynamic, valid_until = self._recalled(keys, index)
+        test = np.flatnonzero(valid_until < 0)
+        sums = np.column_stack(
+            [np.bincount(inverse, weights=points[:, d], minlength=keys.size) for d in range(3)]
+            + [np.bincount(inverse, weights=sweep.intensity, minlength=keys.size), counts]
+        )
+        centroids = sums[test, :3] / counts[test, None]
+        # The band widens with range: a small tilt error of a pose lifts far ground by metres times it.
+        reach = np.linalg.norm(centroids - sweep.T_world_lidar[:3, 3], axis=1)
+        above = self._ground.height_above(centroids) > config.ground_band_m + config.ground_band_per_m * reach
+        test, centroids = test[above], centroids[above]
+        offset = self._slot_sweep - index
+        slots = np.flatnonzero((offset != 0) & (np.abs(offset) <= config.window_scans))
+        hits, misses = voxel_evidence(centroids, self._stack, slots, self._elevation_rad, config)
+        dynamic[test] = (misses >= config.min_misses) & (misses >= config.miss_ratio * hits)
+        valid_until[valid_until < 0] = index + config.reuse_scans
+        valid_until[test[(hits >= 2) & (misses == 0)]] = index + config.window_scans
+        self._recent.appendleft((keys, dynamic, valid_until))
+        return FilteredSweep(points, sweep.intensity, dynamic[inverse], keys, sums, dynamic)
+
+    def _recalled(self, keys: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray]:
+        """The decisions of recent sweeps on ``keys`` (sorted) that still hold: (V,) dynamic flags and
+        the last sweep index each holds for (-1: none holds, test it)."""
+        dynamic = np.zeros(keys.size, bool)
+        valid_until = np.full(keys.size, -1, np.int64)
+        for recent_keys, recent_dynamic, recent_valid in self._recent:  # newest first
+            open_ = np.flatnonzero(valid_until < 0)
+            if not open_.size:
+                break
+            if not recent_keys.size:
+                continue
+            at = np.minimum(np.searchsorted(recent_keys, keys[open_]), recent_keys.size - 1)
+            found = (recent_keys[at] == keys[open_]) & (recent_valid[at] >= index)
+            dynamic[open_[found]] = recent_dynamic[at[found]]
+            valid_until[open_[found]] = recent_valid[at[found]]
+        return dynamic, valid_until
+
+
+class _GroundGrid:
+    """The lowest point height seen in every ``_GROUND_CELL_M`` cell, in square tiles of cells."""
+
+    _TILE = 256  # cells per tile side
+
+    def __init__(self) -> None:
+        self._tiles: dict[int, np.ndarray] = {}
+
+    def note(self, points_world: np.ndarray) -> None:
+        """Lower the cells under ``points_world`` (N,3) to their lowest point."""
+        if not len(points_world):
+            return
+        cell = np.floor(points_world[:, :2] / _GROUND_CELL_M).astype(np.int64)
+        flat = (cell[:, 0] << 32) + cell[:, 1]
+        order = np.lexsort((points_world[:, 2], flat))
+        first = order[np.r_[True, flat[order][1:] != flat[order][:-1]]]  # the lowest point of each cell
+        cell, z = cell[first], points_world[first, 2]
+        for key, rows in self._by_tile(cell):
+            tile = self._tiles.setdefault(key, np.full((self._TILE, self._TILE), np.inf, np.float32))
+            i, j = (cell[rows] % self._TILE).T
+            tile[i, j] = np.minimum(tile[i, j], z[rows])
+
+    def height_above(self, points_world: np.ndarray) -> np.ndarray:
+        """(N,) height of each point above the lowest point of the 3x3 cells around it (inf: none)."""
+        if not len(points_world):
+            return np.zeros(0)
+        cell = np.floor(points_world[:, :2] / _GROUND_CELL_M).astype(np.int64)
+        unique, inverse = np.unique((cell[:, 0] << 32) + (cell[:, 1] + (1 << 31)), return_inverse=True)
+        cell = np.column_stack([unique >> 32, (unique & 0xFFFFFFFF) - (1 << 31)])
+        low = np.full(len(unique), np.inf)
+        for shift in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 0), (0, 1), (1, -1), (1, 0), (1, 1)):
+            shifted = cell + shift
+            for key, rows in self._by_tile(shifted):
+                tile = self._tiles.get(key)
+                if tile is not None:
+                    i, j = (shifted[rows] % self._TILE).T
+                    low[rows] = np.minimum(low[rows], tile[i, j])
+        return points_world[:, 2] - low[inverse.reshape(-1)]
+
+    def _by_tile(self, cell: np.ndarray):
+        """(tile key, row indices) of the cells of each tile."""
+        tile = cell // self._TILE
+        key = (tile[:, 0] << 32) + tile[:, 1]
+        if key.min() == key.max():
+            yield int(key[0]), slice(None)
+            return
+        order = np.argsort(key, kind="stable")
+        sorted_key = key[order]
+        bounds = np.flatnonzero(np.r_[True, sorted_key[1:] != sorted_key[:-1], True])
+        for a, b in itertools.pairwise(bounds):
+            yield int(sorted_key[a]), order[a:b]

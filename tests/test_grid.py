@@ -1,0 +1,205 @@
+"""The 2-D occupancy grid: ray casting in a band above the local ground, the map_server files, and
+``lidar3d grid`` end to end with its bad inputs."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from lidar3d import sim
+from lidar3d.cli.main import main
+from lidar3d.errors import ConfigError
+from lidar3d.grid import check_grid_options, grid_run
+from lidar3d.io.map_server import (
+    FREE_VALUE,
+    OCCUPIED_VALUE,
+    UNKNOWN_VALUE,
+    read_map_server,
+    trinary_image,
+    write_map_server,
+)
+from lidar3d.io.run_folder import check_run_folder
+from lidar3d.io.trajectory_io import read_tum
+from lidar3d.mapping.occupancy_grid import GridParams, GroundModel, OccupancyGridBuilder
+from lidar3d.run import run_bag
+
+# ---------------------------------------------------------------- ray casting on hand-made scenes
+
+
+def _ground(height_of_xy) -> GroundModel:
+    x, y = np.meshgrid(np.arange(-30.0, 31.0), np.arange(-30.0, 31.0), indexing="ij")
+    xy = np.column_stack([x.ravel(), y.ravel()])
+    return GroundModel.from_points(np.column_stack([xy, height_of_xy(xy)]))
+
+
+def _wall(x_m: float, z_of_xy, heights) -> np.ndarray:
+    y = np.linspace(-3.0, 3.0, 61)
+    points = [np.column_stack([np.full_like(y, x_m), y, np.zeros_like(y)]) for _ in heights]
+    for p, h in zip(points, heights):
+        p[:, 2] = z_of_xy(p[:, :2]) + h
+    return np.concatenate(points)
+
+
+@pytest.mark.parametrize("slope", [0.0, 0.12], ids=["flat", "hill"])
+def test_a_wall_is_occupied_the_way_to_it_free_and_behind_it_unknown(slope):
+    def height(xy):
+        return slope * xy[:, 0]
+
+    params = GridParams(resolution_m=0.1)
+    builder = OccupancyGridBuilder(params, _ground(height), np.array([[-20.0, -20.0], [20.0, 20.0]]))
+    sensor = np.array([0.0, 0.0, 1.8])
+    wall = _wall(10.0, height, (0.5, 1.0, 1.5))
+    ground_hits = np.column_stack([np.linspace(2.0, 9.0, 50), np.zeros(50), np.zeros(50)])
+    ground_hits[:, 2] = height(ground_hits[:, :2])  # the ground itself, up the hill, is no obstacle
+    for _ in range(5):  # four sweeps take a cell below free_thresh (0.196)
+        builder.add(sensor, np.concatenate([wall, ground_hits]))
+    grid = builder.grid()
+    i, j, inside = grid.cell_of(np.array([[10.0, 0.0], [5.0, 0.0], [9.0, 0.0], [13.0, 0.0], [5.0, 8.0]]))
+    assert inside.all()
+    p = grid.probability[i, j]
+    assert p[0] > 0.9  # the wall
+    assert p[1] < 0.2 and p[2] < 0.2  # the way to it, up the hill too
+    assert not grid.observed[i[3], j[3]] and not grid.observed[i[4], j[4]]  # behind it, and off every beam
+
+
+def test_points_outside_the_band_are_no_obstacle_and_occupied_wins_within_a_sweep():
+    params = GridParams(resolution_m=0.2, band_m=(0.3, 2.0))
+    builder = OccupancyGridBuilder(params, _ground(lambda xy: np.zeros(len(xy))), np.array([[-20, -20], [20, 20]]))
+    sensor = np.array([0.0, 0.0, 1.0])
+    low_curb = np.array([[6.0, 0.0, 0.1]])  # below the band
+    overhang = np.array([[6.0, 3.0, 3.0]])  # above it
+    obstacle = np.array([[8.0, -3.0, 1.0], [12.0, -4.5, 1.0]])  # the second beam passes the first point's cell
+    builder.add(sensor, np.concatenate([low_curb, overhang, obstacle]))
+    grid = builder.grid()
+    i, j, _ = grid.cell_of(np.array([[6.0, 0.0], [6.0, 3.0], [8.0, -3.0]]))
+    assert grid.log_odds[i[0], j[0]] <= 0 and grid.log_odds[i[1], j[1]] <= 0
+    assert grid.log_odds[i[2], j[2]] == pytest.approx(params.hit_log_odds)
+
+
+def test_log_odds_stay_clamped():
+    params = GridParams(resolution_m=0.2, clamp_log_odds=2.0)
+    builder = OccupancyGridBuilder(params, _ground(lambda xy: np.zeros(len(xy))), np.array([[-20, -20], [20, 20]]))
+    for _ in range(20):
+        builder.add(np.array([0.0, 0.0, 1.0]), np.array([[8.0, 0.0, 1.0]]))
+    grid = builder.grid()
+    assert grid.log_odds.max() == pytest.approx(2.0) and grid.log_odds.min() == pytest.approx(-2.0)
+
+
+# ---------------------------------------------------------------- map_server files
+
+
+def test_map_server_files_follow_its_conventions(tmp_path):
+    probability = np.full((4, 3), 0.5)  # x = 4 cells, y = 3 cells
+    probability[0, 0] = 0.9  # lowest x, lowest y: the lower-left pixel
+    probability[3, 2] = 0.05  # highest x, highest y: the upper-right pixel
+    image = trinary_image(probability)
+    assert image.shape == (3, 4)
+    assert image[2, 0] == OCCUPIED_VALUE and image[0, 3] == FREE_VALUE and image[1, 1] == UNKNOWN_VALUE
+    pgm = write_map_server(tmp_path / "map.yaml", image, 0.25, np.array([-1.5, 2.0]))
+    assert pgm.read_bytes().startswith(b"P5\n")
+    text = (tmp_path / "map.yaml").read_text()
+    for line in ("image: map.pgm", "mode: trinary", "resolution: 0.25", "origin: [-1.500000, 2.000000, 0.0]"):
+        assert line in text
+    assert "negate: 0" in text and "occupied_thresh: 0.65" in text and "free_thresh: 0.196" in text
+    back = read_map_server(tmp_path / "map.yaml")
+    np.testing.assert_array_equal(back.image, image)
+    assert back.origin == (-1.5, 2.0, 0.0) and back.resolution_m == 0.25
+    # map_server's reading: p = (255 - v) / 255, occupied above 0.65, free below 0.196, else unknown.
+    p = (255 - back.image.astype(float)) / 255
+    assert ((p > 0.65) == (back.image == OCCUPIED_VALUE)).all() and ((p < 0.196) == (back.image == FREE_VALUE)).all()
+
+
+# ---------------------------------------------------------------- lidar3d grid end to end
+
+
+@pytest.fixture(scope="module")
+def loop_run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("grid")
+    simulated = sim.simulate("loop", folder / "sim", seed=0, duration_s=2.0)
+    run_bag(simulated.bag, folder / "run", prefetch=False)
+    return simulated, folder / "run"
+
+
+def test_grid_command_writes_a_map_whose_path_is_free(loop_run, tmp_path, capsys):
+    _, run = loop_run
+    assert main(["-q", "grid", str(run), "--out", str(tmp_path / "g")]) == 0
+    out = capsys.readouterr().out
+    assert "scans gridded" in out and "map.yaml" in out
+    grid_map = read_map_server(tmp_path / "g" / "map.yaml")
+    assert set(np.unique(grid_map.image)) <= {OCCUPIED_VALUE, FREE_VALUE, UNKNOWN_VALUE}
+    assert (tmp_path / "g" / "map.png").read_bytes().startswith(b"\x89PNG")
+    rows = grid_map.image.shape[0]
+    path = read_tum(run / "trajectory_tum.txt").positions_m[:, :2]
+    col = np.floor((path[:, 0] - grid_map.origin[0]) / grid_map.resolution_m).astype(int)
+    row = rows - 1 - np.floor((path[:, 1] - grid_map.origin[1]) / grid_map.resolution_m).astype(int)
+    assert (grid_map.image[row, col] == FREE_VALUE).mean() >= 0.99
+    assert (grid_map.image == OCCUPIED_VALUE).sum() > 100  # the block's facades
+    assert check_run_folder(run).state.value == "consistent"  # the run folder is left as it was
+
+
+def test_a_partial_run_is_gridded_as_far_as_it_goes(loop_run, tmp_path, capsys):
+    simulated, _ = loop_run
+
+    def stop(done, total):
+        if done == 8:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run_bag(simulated.bag, tmp_path / "partial", on_scan=stop, prefetch=False)
+    outcome = grid_run(tmp_path / "partial", tmp_path / "g")
+    assert outcome.partial and 0 < outcome.scans <= 8
+    assert main(["-q", "grid", str(tmp_path / "partial"), "--out", str(tmp_path / "g2")]) == 0
+    assert "partial" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    "options, message",
+    [
+        (["--band", "1.0", "1.0"], "--band 1 1 is empty"),
+        (["--band", "2.0", "0.3"], "--band 2 0.3 is inverted"),
+        (["--resolution", "0"], "--resolution must be > 0 m"),
+        (["--resolution", "-0.1"], "--resolution must be > 0 m"),
+    ],
+)
+def test_bad_options_give_one_line(loop_run, tmp_path, capsys, options, message):
+    _, run = loop_run
+    assert main(["grid", str(run), "--out", str(tmp_path / "g"), *options]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("lidar3d grid: error: ") and message in err and "\n" not in err
+    with pytest.raises(ConfigError):
+        check_grid_options(0.1, (2.0, 0.3))
+
+
+@pytest.mark.parametrize("case", ["missing", "empty", "not a run", "damaged"])
+def test_a_folder_that_is_no_finished_run_gives_one_line(loop_run, tmp_path, capsys, case):
+    _, run = loop_run
+    folder = tmp_path / "folder"
+    if case == "empty":
+        folder.mkdir()
+    elif case == "not a run":
+        folder.mkdir()
+        (folder / "notes.txt").write_text("hello")
+    elif case == "damaged":
+        import shutil
+
+        shutil.copytree(run, folder)
+        (folder / "trajectory_tum.txt").write_text("garbage\n")
+    assert main(["grid", str(folder), "--out", str(tmp_path / "g")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("lidar3d grid: error: ") and str(folder) in err and "\n" not in err
+
+
+def test_a_run_whose_bag_is_gone_names_it(loop_run, tmp_path, capsys):
+    import shutil
+
+    from lidar3d.io.run_folder import publish_set
+    from lidar3d.summary import read_summary
+
+    _, run = loop_run
+    folder = tmp_path / "moved"
+    shutil.copytree(run, folder)
+    summary = read_summary(folder / "summary.json")
+    keep = [entry.path for entry in summary.outputs]
+    publish_set(folder, dataclasses.replace(summary, inputs=("/nowhere/drive.bag",)), keep=keep)
+    assert main(["grid", str(folder), "--out", str(tmp_path / "g")]) == 1
+    assert "/nowhere/drive.bag" in capsys.readouterr().err
