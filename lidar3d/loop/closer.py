@@ -175,13 +175,8 @@ class LoopCloser:
                 self.graph.add_keyframe(0, poses[0])
                 self._path_m.append(0.0)
             else:
-                self.graph.add_keyframe(
-                    k,
-                    poses[k],
-                    invert(poses[k - 1]) @ poses[k],
-                    self._odometry_sigmas,
-                    keyframes[k].step_covariance,
-                )
+                step = invert(poses[k - 1]) @ poses[k]
+                self.graph.add_keyframe(k, poses[k], step, self._odometry_sigmas, keyframes[k].step_covariance)
                 self._path_m.append(self._path_m[-1] + float(np.linalg.norm(poses[k, :3, 3] - poses[k - 1, :3, 3])))
 
     def on_keyframe(self, keyframes: Sequence, poses: np.ndarray) -> LoopUpdate | None:
