@@ -103,9 +103,8 @@ def _laz_check(path: Path, truth_xy: np.ndarray) -> dict:
     return result
 
 
-def _loop(out: Path) -> dict:
-    case = _case("loop", out)
-    run = out / "loop_run"
+def _timed_run(case: Path, run: Path, span_log: Path, *options: str) -> float:
+    """Wall seconds of ``lidar3d run`` on the case's bag with ``span_log`` and its extrinsics."""
     t0 = time.perf_counter()
     _cli(
         "run",
@@ -113,12 +112,19 @@ def _loop(out: Path) -> dict:
         "--out",
         run,
         "--span",
-        case / "novatel_span.log",
+        span_log,
         "--extrinsics",
         case / "extrinsics.toml",
+        *options,
         "--overwrite",
     )
-    run_s = time.perf_counter() - t0
+    return time.perf_counter() - t0
+
+
+def _loop(out: Path) -> dict:
+    case = _case("loop", out)
+    run = out / "loop_run"
+    run_s = _timed_run(case, run, case / "novatel_span.log")
     _cli("export", run, "--crs", "utm", "--out", out / "loop_trajectory.tum")
     t0 = time.perf_counter()
     _cli("export", run, "--crs", "utm", "--out", out / "loop_map.laz")
@@ -175,20 +181,7 @@ def _city(out: Path) -> dict:
     case = _case("city_traffic", out)
     log = _jump_log(case, out)
     run = out / "city_fused_run"
-    t0 = time.perf_counter()
-    _cli(
-        "run",
-        case / "scans.bag",
-        "--out",
-        run,
-        "--span",
-        log,
-        "--extrinsics",
-        case / "extrinsics.toml",
-        "--gnss-factors",
-        "--overwrite",
-    )
-    run_s = time.perf_counter() - t0
+    run_s = _timed_run(case, run, log, "--gnss-factors")
     t0 = time.perf_counter()
     _cli("export", run, "--crs", "utm", "--out", out / "city_map.laz")
     laz_s = time.perf_counter() - t0

@@ -68,13 +68,19 @@ def _crs_comments(crs: OutputCrs) -> list[str]:
     return [f"lidar3d map, CRS {crs.name}, axes {' '.join(crs.axis_names)}, heights ellipsoidal (WGS84)"]
 
 
-def write_pcd_double(path: str | Path, points: np.ndarray, intensity: np.ndarray, crs: OutputCrs) -> None:
-    """Binary PCD with float64 x y z and float32 intensity; the CRS in the header's comment lines."""
+def _double_records(points: np.ndarray, intensity: np.ndarray) -> np.ndarray:
+    """(N,) little-endian records of float64 x, y, z and float32 intensity."""
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    n = len(points)
-    record = np.empty(n, dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("intensity", "<f4")])
+    record = np.empty(len(points), dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("intensity", "<f4")])
     record["x"], record["y"], record["z"] = points[:, 0], points[:, 1], points[:, 2]
     record["intensity"] = np.asarray(intensity, dtype=np.float32)
+    return record
+
+
+def write_pcd_double(path: str | Path, points: np.ndarray, intensity: np.ndarray, crs: OutputCrs) -> None:
+    """Binary PCD with float64 x y z and float32 intensity; the CRS in the header's comment lines."""
+    record = _double_records(points, intensity)
+    n = len(record)
     comments = "".join(f"# {line}\n" for line in _crs_comments(crs))
     header = (
         f"# .PCD v0.7 - Point Cloud Data file format\n{comments}VERSION 0.7\nFIELDS x y z intensity\n"
@@ -86,11 +92,8 @@ def write_pcd_double(path: str | Path, points: np.ndarray, intensity: np.ndarray
 
 def write_ply_double(path: str | Path, points: np.ndarray, intensity: np.ndarray, crs: OutputCrs) -> None:
     """Binary little-endian PLY with double x y z and float intensity; the CRS in ``comment`` lines."""
-    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    n = len(points)
-    record = np.empty(n, dtype=[("x", "<f8"), ("y", "<f8"), ("z", "<f8"), ("intensity", "<f4")])
-    record["x"], record["y"], record["z"] = points[:, 0], points[:, 1], points[:, 2]
-    record["intensity"] = np.asarray(intensity, dtype=np.float32)
+    record = _double_records(points, intensity)
+    n = len(record)
     comments = "".join(f"comment {line}\n" for line in _crs_comments(crs))
     header = (
         f"ply\nformat binary_little_endian 1.0\n{comments}element vertex {n}\n"
