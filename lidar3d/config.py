@@ -551,13 +551,15 @@ class LoopConfig:
     place_threshold: float = _key(
         0.2, _FRACTION, "descriptor distance below which a keyframe is the same place (SC reference: 0.13-0.2)"
     )
-    place_confirm_keyframes: int = _key(
-        10, _closed(1, 1_000_000), "a place match beyond the drift allowance waits this many keyframes for a second"
+    consistency_keyframes: int = _key(
+        10,
+        _closed(1, 1_000_000),
+        "closures this many keyframes apart are checked against each other (a large place match waits as long)",
     )
-    place_consistency_m: float = _key(
+    consistency_m: float = _key(
         1.0, _positive(1000.0, "m"), "two closures agree: cycle error within this plus correction_per_distance ..."
     )
-    place_consistency_deg: float = _key(2.0, _positive(180.0, "deg"), "... of the spans' path, and this rotation")
+    consistency_deg: float = _key(2.0, _positive(180.0, "deg"), "... of the spans' path, and this rotation")
     relinearize_threshold: float = _key(0.01, _closed(0.0, 100.0), "iSAM2 relinearization threshold (LIO-SAM 0.1)")
     extra_updates: int = _key(5, _closed(0, 1000), "iSAM2 updates after a loop (LIO-SAM 5)")
 

@@ -11,8 +11,9 @@ from test_loop_sim import KEYFRAME_STRIDE, _cloud, _sim
 
 from lidar3d.config import LoopConfig
 from lidar3d.loop import LoopCloser, Verdict
-from lidar3d.loop.consistency import cycle_error, pairwise_consistent
+from lidar3d.loop.consistency import cycle_error, keep_consistent, pairwise_consistent
 from lidar3d.loop.place import PlaceIndex, ScanContext, level_rotation, place_guess
+from lidar3d.loop.records import LoopCandidate
 from lidar3d.mapping.keyframes import Keyframe
 from lidar3d.mapping.se3 import exp_se3, invert, transform_points
 
@@ -101,6 +102,28 @@ def test_pairwise_consistency_accepts_agreeing_closures_and_rejects_a_wrong_one(
     ok, error_m, _ = pairwise_consistent(estimate, path, first, wrong, **kwargs)
     assert not ok and error_m == pytest.approx(3.0)
     assert cycle_error(estimate, first, first) == pytest.approx((0.0, 0.0), abs=1e-9)
+
+
+def _candidate(query: int, match: int, T_match_query: np.ndarray) -> LoopCandidate:
+    return LoopCandidate(
+        query, match, query, match, 1.0, 0.9, 0.1, 0.9, 0.0, 0.0, Verdict.ACCEPTED, "ok", T_match_query, np.eye(6)
+    )
+
+
+def test_a_closure_that_disagrees_with_the_one_before_is_kept_out():
+    truth = np.array([_pose(float(x), 0.0, 0.0) for x in range(40)])
+    path = np.arange(40, dtype=float)
+    config = LoopConfig()
+    recent = _candidate(30, 1, invert(truth[1]) @ truth[30])
+    good = _candidate(33, 4, invert(truth[4]) @ truth[33])
+    slid = _candidate(33, 4, invert(truth[4]) @ truth[33] @ _pose(3.0, 0.0, 0.0))  # ICP slid 3 m
+    records = [slid]
+    assert keep_consistent(truth, path, recent, [good], [good], config) == [good]
+    assert keep_consistent(truth, path, recent, [slid], records, config) == []
+    assert records[0].verdict is Verdict.INCONSISTENT and "open by 3.00 m" in records[0].reason
+    assert not records[0].information.any()
+    far = _candidate(30 + config.consistency_keyframes + 1, 4, slid.T_match_query)
+    assert keep_consistent(truth, path, recent, [far], [far], config) == [far]  # too far apart to compare
 
 
 def _badly_drifting_keyframes():

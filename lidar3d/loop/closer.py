@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.loop.candidates import find_candidates
+from lidar3d.loop.consistency import keep_consistent
 from lidar3d.loop.place_closures import PlaceClosures
 from lidar3d.loop.pose_graph import PoseGraph
 from lidar3d.loop.records import LoopCandidate, Verdict
@@ -146,6 +147,7 @@ class LoopCloser:
         self._path_m: list[float] = []  # travelled distance at each keyframe (given poses)
         self._stamps_ns: list[int] = []
         self._last_accepted_query = -(10**9)
+        self._recent_closure: LoopCandidate | None = None
         self.places = PlaceClosures(config) if config.source != "distance" else None
 
     @property
@@ -225,6 +227,7 @@ class LoopCloser:
                 if record.accepted:
                     accepted.append(record)
                     break
+        accepted = keep_consistent(poses, np.asarray(self._path_m), self._recent_closure, accepted, records, cfg)
         if not accepted and self.places is not None:
             gap_ns = int(round(cfg.min_time_gap_s * 1e9))
             eligible = np.flatnonzero(stamps[:query] <= stamps[query] - gap_ns)
@@ -237,6 +240,7 @@ class LoopCloser:
             accepted = self.places.closures(
                 query, eligible, poses, np.asarray(self._path_m), verify, self._drift_allowance_m, records
             )
+            accepted = keep_consistent(poses, np.asarray(self._path_m), self._recent_closure, accepted, records, cfg)
         for record in accepted:
             self.graph.add_loop(record.query, record.match, record.T_match_query, record.information)
         if accepted:
@@ -248,6 +252,7 @@ class LoopCloser:
         if not accepted:
             return None
         self._last_accepted_query = query
+        self._recent_closure = accepted[-1]
         new_poses = nearest_rigid(self.graph.optimize())
         for record in accepted:
             log.info(
@@ -260,8 +265,7 @@ class LoopCloser:
         return LoopUpdate(new_poses, poses.copy(), tuple(accepted), tuple(records))
 
     def _drift_allowance_m(self, query: int, match: int) -> float:
-        """How far the estimate of ``query`` relative to ``match`` may be off: the largest
-        correction a distance closure may make."""
+        """The largest correction of ``query`` relative to ``match`` a distance closure may make."""
         return self.config.max_correction_m + self.config.correction_per_distance * (
             self._path_m[query] - self._path_m[match]
         )

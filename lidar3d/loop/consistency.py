@@ -8,16 +8,20 @@ closures agree up to the drift over the short odometry spans; a wrong one disagr
 error. This is the pairwise test of pairwise consistency maximisation (J. Mangelson et al.,
 "Pairwise Consistent Measurement Set Maximization for Robust Multi-robot Map Merging", ICRA
 2018), used here to let a place match that moves the trajectory by more than its drift allowance
-into the graph only when a second closure confirms it.
+into the graph only when a second closure confirms it, and to keep a closure out of it when it
+disagrees with the one accepted just before (:func:`keep_consistent`).
 """
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
+from lidar3d.loop.records import LoopCandidate, Verdict
 from lidar3d.mapping.se3 import invert
 
-__all__ = ["cycle_error", "pairwise_consistent"]
+__all__ = ["cycle_error", "keep_consistent", "pairwise_consistent"]
 
 
 def cycle_error(
@@ -52,3 +56,37 @@ def pairwise_consistent(
     span_m = abs(path_m[second[0]] - path_m[first[0]]) + abs(path_m[second[1]] - path_m[first[1]])
     ok = moved_m <= tolerance_m + drift_per_distance * span_m and moved_deg <= tolerance_deg
     return bool(ok), moved_m, moved_deg
+
+
+def keep_consistent(
+    poses: np.ndarray,
+    path_m: np.ndarray,
+    recent: LoopCandidate | None,
+    accepted: list[LoopCandidate],
+    records: list[LoopCandidate],
+    config,
+) -> list[LoopCandidate]:
+    """``accepted`` unless its first closure disagrees with ``recent`` (the closure accepted last,
+    when at most ``config.consistency_keyframes`` keyframes older): then none, and the matching
+    entries of ``records`` become ``Verdict.INCONSISTENT`` with the cycle error in the reason."""
+    if not accepted or recent is None or accepted[0].query - recent.query > config.consistency_keyframes:
+        return accepted
+    first = accepted[0]
+    ok, error_m, error_deg = pairwise_consistent(
+        poses,
+        path_m,
+        (recent.query, recent.match, recent.T_match_query),
+        (first.query, first.match, first.T_match_query),
+        tolerance_m=config.consistency_m,
+        tolerance_deg=config.consistency_deg,
+        drift_per_distance=config.correction_per_distance,
+    )
+    if ok:
+        return accepted
+    why = f"cycle with keyframe {recent.query}'s closure open by {error_m:.2f} m / {error_deg:.2f} deg"
+    for k, record in enumerate(records):
+        if any(record is a for a in accepted):
+            records[k] = dataclasses.replace(
+                record, verdict=Verdict.INCONSISTENT, reason=f"{why}; {record.reason}", information=np.zeros((6, 6))
+            )
+    return []

@@ -4,7 +4,7 @@ descriptor's yaw, and the confirmation of corrections larger than drift explains
 A verified place match whose correction of the estimate is within the distance gate's drift
 allowance is accepted as a distance closure would be. One beyond it (the estimate drifted
 farther than the gate believes possible, or the match is wrong) is held as unconfirmed until a
-place match within ``loop.place_confirm_keyframes`` keyframes agrees with it
+place match within ``loop.consistency_keyframes`` keyframes agrees with it
 (:func:`~lidar3d.loop.consistency.pairwise_consistent`); then both enter the graph. A single
 wrong match can therefore never move the trajectory by more than the drift allowance.
 """
@@ -72,7 +72,7 @@ class PlaceClosures:
             unconfirmed closure and the new one that agrees with it.
         """
         cfg = self.config
-        if self.pending is not None and query - self.pending.query > cfg.place_confirm_keyframes:
+        if self.pending is not None and query - self.pending.query > cfg.consistency_keyframes:
             self.pending = None
         for place in self.index.query(query, eligible)[: cfg.max_candidates]:
             guess = place_guess(poses[place.match], poses[query], place.yaw_rad)
@@ -113,8 +113,8 @@ class PlaceClosures:
             path_m,
             (pending.query, pending.match, pending.T_match_query),
             (held.query, held.match, held.T_match_query),
-            tolerance_m=cfg.place_consistency_m,
-            tolerance_deg=cfg.place_consistency_deg,
+            tolerance_m=cfg.consistency_m,
+            tolerance_deg=cfg.consistency_deg,
             drift_per_distance=cfg.correction_per_distance,
         )
         if not ok:

@@ -21,6 +21,7 @@ class Verdict(str, enum.Enum):
     LOW_OVERLAP = "low_overlap"  # voxel overlap of the aligned clouds below the threshold
     LARGE_CORRECTION = "large_correction"  # ICP moved farther from the guess than the drift can explain
     GRAPH_ERROR = "graph_error"  # verified, but the pose graph could not take the factor
+    INCONSISTENT = "inconsistent"  # verified, but its cycle with the closure accepted just before does not close
     UNCONFIRMED = "unconfirmed"  # a place match that moves the estimate farther than drift explains,
     # waiting for a second closure consistent with it (the accepted pair is recorded again)
 
