@@ -21,7 +21,7 @@ import numpy as np
 from lidar3d.loop.records import LoopCandidate, Verdict
 from lidar3d.mapping.se3 import invert
 
-__all__ = ["cycle_error", "keep_consistent", "pairwise_consistent"]
+__all__ = ["closures_agree", "cycle_error", "keep_consistent", "pairwise_consistent"]
 
 
 def cycle_error(
@@ -58,6 +58,22 @@ def pairwise_consistent(
     return bool(ok), moved_m, moved_deg
 
 
+def closures_agree(
+    poses: np.ndarray, path_m: np.ndarray, first: LoopCandidate, second: LoopCandidate, config
+) -> tuple[bool, float, float]:
+    """:func:`pairwise_consistent` of two loop candidates with the tolerances of the
+    :class:`lidar3d.config.LoopConfig` ``config``."""
+    return pairwise_consistent(
+        poses,
+        path_m,
+        (first.query, first.match, first.T_match_query),
+        (second.query, second.match, second.T_match_query),
+        tolerance_m=config.consistency_m,
+        tolerance_deg=config.consistency_deg,
+        drift_per_distance=config.correction_per_distance,
+    )
+
+
 def keep_consistent(
     poses: np.ndarray,
     path_m: np.ndarray,
@@ -71,16 +87,7 @@ def keep_consistent(
     entries of ``records`` become ``Verdict.INCONSISTENT`` with the cycle error in the reason."""
     if not accepted or recent is None or accepted[0].query - recent.query > config.consistency_keyframes:
         return accepted
-    first = accepted[0]
-    ok, error_m, error_deg = pairwise_consistent(
-        poses,
-        path_m,
-        (recent.query, recent.match, recent.T_match_query),
-        (first.query, first.match, first.T_match_query),
-        tolerance_m=config.consistency_m,
-        tolerance_deg=config.consistency_deg,
-        drift_per_distance=config.correction_per_distance,
-    )
+    ok, error_m, error_deg = closures_agree(poses, path_m, recent, accepted[0], config)
     if ok:
         return accepted
     why = f"cycle with keyframe {recent.query}'s closure open by {error_m:.2f} m / {error_deg:.2f} deg"

@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from lidar3d.loop.consistency import pairwise_consistent
+from lidar3d.loop.consistency import closures_agree
 from lidar3d.loop.place import PlaceIndex, place_guess
 from lidar3d.loop.records import LoopCandidate, Verdict
 from lidar3d.loop.verification import pose_change
@@ -107,16 +107,7 @@ class PlaceClosures:
         pending = self.pending
         if pending is None:
             return []
-        cfg = self.config
-        ok, error_m, error_deg = pairwise_consistent(
-            poses,
-            path_m,
-            (pending.query, pending.match, pending.T_match_query),
-            (held.query, held.match, held.T_match_query),
-            tolerance_m=cfg.consistency_m,
-            tolerance_deg=cfg.consistency_deg,
-            drift_per_distance=cfg.correction_per_distance,
-        )
+        ok, error_m, error_deg = closures_agree(poses, path_m, pending, held, self.config)
         if not ok:
             return []
         self.pending = None
