@@ -1,6 +1,6 @@
 """``lidar3d batch`` end to end with the local engine on tiny simulated drives (2 s each).
 
-One corrupt bag among them; SPAN logs matched by time overlap; a re-run skips, ``--force`` redoes;
+One corrupt bag among them; SPAN logs matched by time overlap; a re-run skips, ``--overwrite`` redoes;
 Ctrl-C stops cleanly, a SIGKILL mid-batch is resumed without redoing finished bags; the HTML
 report is opened in headless Chromium (skipped when it is not installed).
 """
@@ -180,8 +180,8 @@ def test_rerun_skips_finished_bags_and_force_redoes_them(first_run, drives):
     assert rows[NAMES["bad"]]["status"] == "failed"
     assert {n: _mtime(out / NAMES[n] / JOB_FILE) for n in GOOD} == stamps
 
-    # --force on two of them (the same names, as they still collide): both redone, c left alone.
-    assert main(["batch", str(drives / "a"), str(drives / "b"), *args[2:], "--force"]) == 0
+    # --overwrite on two of them (the same names, as they still collide): both redone, c left alone.
+    assert main(["batch", str(drives / "a"), str(drives / "b"), *args[2:], "--overwrite"]) == 0
     rows = _rows(out)
     assert set(rows) == {NAMES["a"], NAMES["b"]}
     assert {row["status"] for row in rows.values()} == {"done"}

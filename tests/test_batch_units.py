@@ -102,7 +102,7 @@ def test_content_fingerprint_follows_content_not_names_or_times(tmp_path):
         touch(b, bytes(changed))
         assert content_fingerprint(b) != content_fingerprint(a), offset
     changed = bytearray(big)
-    changed[sampled + SAMPLE_BYTES] ^= 0xFF  # between samples: the documented blind spot (use --force)
+    changed[sampled + SAMPLE_BYTES] ^= 0xFF  # between samples: the documented blind spot (use --overwrite)
     touch(b, bytes(changed))
     assert content_fingerprint(b) == content_fingerprint(a)
     touch(b, bytes(big) + b"x")

@@ -18,7 +18,7 @@ BLAS/OpenMP threads.
 from lidar3d.batch.discovery import BagInput, discover_bags
 from lidar3d.batch.engines import Engine
 from lidar3d.batch.fingerprint import content_fingerprint, job_fingerprint
-from lidar3d.batch.jobs import BagJob, JobResult, JobStatus, process_job
+from lidar3d.batch.jobs import BagJob, JobResult, JobStatus, RunOptions, process_job
 from lidar3d.batch.progress import BatchProgress, ProgressDisplay
 from lidar3d.batch.report import ROW_FIELDS, ReportPaths
 from lidar3d.batch.runner import BatchOutcome, default_workers, run_batch
@@ -35,6 +35,7 @@ __all__ = [
     "JobStatus",
     "ProgressDisplay",
     "ReportPaths",
+    "RunOptions",
     "SpanMatch",
     "content_fingerprint",
     "default_workers",

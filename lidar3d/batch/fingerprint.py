@@ -96,15 +96,22 @@ def job_fingerprint(
     span_fingerprint: str | None,
     extrinsics_fingerprint: str | None,
     version: str,
+    run_options: dict[str, object] | None = None,
 ) -> str:
-    """``"sha256:<hex>"`` of everything that determines one bag's outputs."""
-    identity = {
+    """``"sha256:<hex>"`` of everything that determines one bag's outputs.
+
+    ``run_options``: the per-bag run options that differ from their defaults (``{"start": 10}``);
+    empty or None adds nothing, so a batch with default options keeps its earlier fingerprints.
+    """
+    identity: dict[str, object] = {
         "bag": bag_fingerprint,
         "config": config_toml,
         "span_log": span_fingerprint,
         "extrinsics": extrinsics_fingerprint,
         "lidar3d": version,
     }
+    if run_options:
+        identity["run_options"] = run_options
     text = json.dumps(identity, sort_keys=True, separators=(",", ":"))
     return f"sha256:{hashlib.sha256(text.encode()).hexdigest()}"
 

@@ -42,6 +42,7 @@ __all__ = [
     "JOB_FILE",
     "THREAD_VARIABLES",
     "BagJob",
+    "RunOptions",
     "JobResult",
     "JobStatus",
     "JobStopped",
@@ -76,6 +77,21 @@ class JobStatus(str, Enum):
 
 
 @dataclass(frozen=True, slots=True)
+class RunOptions:
+    """The per-bag options of ``lidar3d run`` that are not configuration keys, the same for every bag.
+
+    Attributes:
+        start: scans skipped at the start of each bag (``--start``).
+        max_scans: at most this many scans per bag (``--max-scans``; None: all).
+        gnss_factors: fuse each bag's SPAN log into its pose graph (``--gnss-factors``).
+    """
+
+    start: int = 0
+    max_scans: int | None = None
+    gnss_factors: bool = False
+
+
+@dataclass(frozen=True, slots=True)
 class BagJob:
     """Everything a worker needs for one bag; plain, picklable values only.
 
@@ -91,6 +107,7 @@ class BagJob:
         span_match: how the SPAN log was chosen, in words.
         threads: BLAS/OpenMP threads for the job (None: leave the environment as it is).
         size_bytes: bag size, for progress estimates.
+        run_options: ``--start``, ``--max-scans``, ``--gnss-factors``.
     """
 
     name: str
@@ -103,6 +120,7 @@ class BagJob:
     span_match: str = ""
     threads: int | None = None
     size_bytes: int = 0
+    run_options: RunOptions = RunOptions()
 
 
 @dataclass(frozen=True, slots=True)
@@ -271,6 +289,9 @@ def process_job(
                 config,
                 span_log=job.span_log,
                 extrinsics=job.extrinsics if job.span_log is not None else None,
+                start=job.run_options.start,
+                max_scans=job.run_options.max_scans,
+                gnss_factors=job.run_options.gnss_factors and job.span_log is not None,
                 on_scan=scan_callback,
                 checkpoint_every_s=math.inf,
                 map_checkpoint_every_s=math.inf,

@@ -21,6 +21,7 @@ Failed bags are retried on every run. ``force=True`` redoes every bag.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
 import logging
 import os
@@ -34,7 +35,7 @@ from typing import Any, TextIO
 from lidar3d.batch.discovery import BagInput, discover_bags
 from lidar3d.batch.engines import Engine, run_local, run_ray
 from lidar3d.batch.fingerprint import bag_size_bytes, content_fingerprint, job_fingerprint
-from lidar3d.batch.jobs import JOB_FILE, BagJob, JobResult, JobStatus, read_job_record, staging_folders
+from lidar3d.batch.jobs import JOB_FILE, BagJob, JobResult, JobStatus, RunOptions, read_job_record, staging_folders
 from lidar3d.batch.progress import BatchProgress
 from lidar3d.batch.report import ReportPaths, bag_row, write_report
 from lidar3d.batch.span_match import SpanMatch, TimeRangeCache, match_span_logs, resolve_extrinsics
@@ -194,11 +195,17 @@ def _make_jobs(
     extrinsics: dict[str, Path | None],
     fingerprints: dict[Path, str],
     threads: int | None,
+    run_options: RunOptions,
 ) -> list[BagJob]:
     from lidar3d import __version__
     from lidar3d.config import config_to_toml
 
     config_toml = config_to_toml(config)
+    changed_options = {
+        field.name: getattr(run_options, field.name)
+        for field in dataclasses.fields(run_options)
+        if getattr(run_options, field.name) != field.default
+    }
 
     def fingerprint_of(path: Path | None) -> str | None:
         if path is None or not path.exists():
@@ -217,6 +224,7 @@ def _make_jobs(
             span_fingerprint=fingerprint_of(match.span_log),
             extrinsics_fingerprint=fingerprint_of(extrinsic) if extrinsic is not None else None,
             version=__version__,
+            run_options=changed_options,
         )
         jobs.append(
             BagJob(
@@ -230,6 +238,7 @@ def _make_jobs(
                 span_match=match.how,
                 threads=threads,
                 size_bytes=bag_size_bytes(bag.path),
+                run_options=run_options,
             )
         )
     return jobs
@@ -288,6 +297,7 @@ def run_batch(
     engine: Engine | str = Engine.LOCAL,
     ray_address: str | None = None,
     force: bool = False,
+    run_options: RunOptions | None = None,
     on_progress: ProgressCallback | None = None,
     job_function: Callable[..., JobResult] | None = None,
 ) -> BatchOutcome:
@@ -305,6 +315,7 @@ def run_batch(
         engine: ``"local"`` (process pool) or ``"ray"``.
         ray_address: an existing Ray cluster (``"auto"``, ``"ray://head:10001"``...).
         force: redo bags that are up to date.
+        run_options: ``--start``, ``--max-scans``, ``--gnss-factors`` for every bag (defaults when None).
         on_progress: see :data:`ProgressCallback`.
         job_function: replaces :func:`lidar3d.batch.jobs.process_job` in the local engine (tests).
 
@@ -354,7 +365,9 @@ def run_batch(
         extrinsic_files = resolve_extrinsics(extrinsics, bags)
         n_workers = workers or (default_workers() if engine is Engine.LOCAL else None)
         threads = 1 if engine is Engine.RAY or (n_workers or 1) > 1 else None
-        jobs = _make_jobs(bags, out, config, matches, extrinsic_files, fingerprints, threads)
+        jobs = _make_jobs(
+            bags, out, config, matches, extrinsic_files, fingerprints, threads, run_options or RunOptions()
+        )
         skipped = set() if force else {job.name for job in jobs if _up_to_date(job)}
         todo = [job for job in jobs if job.name not in skipped]
         for job in jobs:

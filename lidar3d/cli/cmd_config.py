@@ -13,7 +13,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         epilog="example:\n  lidar3d config > my.toml     # edit, then: lidar3d run BAG --config my.toml",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    parser.add_argument("--config", metavar="FILE", help="TOML file to resolve and validate")
+    parser.add_argument(
+        "--config", metavar="FILE", help="TOML file to resolve and validate (default: none, the built-in values)"
+    )
     parser.set_defaults(func=run)
 
 

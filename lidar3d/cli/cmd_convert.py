@@ -39,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument(
         "--min-range", type=float, default=0.0, metavar="M", help="drop returns nearer than M metres (default 0)"
     )
-    parser.add_argument("--config", metavar="FILE", help="TOML configuration")
+    parser.add_argument("--config", metavar="FILE", help="TOML configuration (default: built-in values)")
     parser.add_argument("--overwrite", action="store_true", help="replace an existing output bag")
     add_packet_arguments(parser)
     parser.set_defaults(func=run)

@@ -19,7 +19,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--out", default="demo_output", metavar="DIR", help="output folder (default: demo_output)")
     parser.add_argument("--scenario", default="loop", help="simulator scenario (default: loop)")
-    parser.add_argument("--duration", type=float, metavar="S", help="simulate only the first S seconds")
+    parser.add_argument(
+        "--duration", type=float, metavar="S", help="simulate only the first S seconds (default: the whole route)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="simulation seed (default: 0)")
     parser.set_defaults(func=run)
 

@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import argparse
 
+from lidar3d.cli.options import add_config_argument, add_output_arguments
+
 _EPILOG = """\
 examples:
   lidar3d eval out/trajectory_tum.txt --span drive.gps --extrinsics imu_lidar.toml --out out/eval
@@ -37,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("trajectory", metavar="TRAJECTORY", help="estimated trajectory (TUM or KITTI)")
     parser.add_argument("--span", required=True, metavar="LOG", help="NovAtel SPAN log (ASCII or binary)")
-    parser.add_argument("--extrinsics", metavar="FILE", help="T_imu_lidar (TOML or YAML); identity if omitted")
+    parser.add_argument("--extrinsics", metavar="FILE", help="T_imu_lidar, TOML or YAML (default: identity)")
     parser.add_argument(
         "--align", choices=("se3", "yaw", "none"), default=None, help="alignment (default: config, se3)"
     )
@@ -61,8 +63,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="a trajectory fused with LOG: score only the poses in the held-out periods",
     )
-    parser.add_argument("--config", metavar="FILE", help="TOML configuration ([gnss] section)")
-    parser.add_argument("--out", required=True, metavar="DIR", help="output folder for the report")
+    add_config_argument(parser, " ([gnss] section)")
+    add_output_arguments(parser, what="output folder for the report", overwrite=None)
     parser.set_defaults(func=run)
 
 

@@ -12,25 +12,18 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+from lidar3d.cli.options import (
+    add_config_argument,
+    add_output_arguments,
+    add_scan_selection,
+    add_topic_argument,
+    apply_topic_argument,
+    scan_selection,
+)
 from lidar3d.cli.packet_options import add_packet_arguments, apply_packet_arguments
 from lidar3d.export.front_end import FRONT_END_FILES, write_front_end_scan
 
 log = logging.getLogger(__name__)
-
-
-def _scan_range(text: str) -> tuple[int, int | None]:
-    """Parse ``A:B`` (either side may be empty) into a half-open index range."""
-    start_text, sep, stop_text = text.partition(":")
-    try:
-        if not sep:
-            raise ValueError
-        start = int(start_text) if start_text.strip() else 0
-        stop = int(stop_text) if stop_text.strip() else None
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected A:B (scan indices, either may be empty), got {text!r}") from None
-    if start < 0 or (stop is not None and stop <= start):
-        raise argparse.ArgumentTypeError(f"expected 0 <= A < B, got {text!r}")
-    return start, stop
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:
@@ -45,20 +38,14 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "median time per sub-stage in ms per scan.",
             width=88,
         ),
-        epilog="example:\n  lidar3d features run.bag --out fe --scans 100:110\n  pcl_viewer fe/scan_000100/*.pcd",
+        epilog="example:\n  lidar3d features run.bag --out fe --start 100 --max-scans 10\n  pcl_viewer fe/scan_000100/*.pcd",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s), ROS2 bag folder, or pcap file(s)")
-    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
-    parser.add_argument(
-        "--scans",
-        type=_scan_range,
-        default=(0, None),
-        metavar="A:B",
-        help="scan indices A (inclusive) to B (exclusive); default: all",
-    )
-    parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one)")
-    parser.add_argument("--config", metavar="FILE", help="TOML configuration file")
+    add_output_arguments(parser, what="output folder", overwrite=None)
+    add_topic_argument(parser)
+    add_config_argument(parser)
+    add_scan_selection(parser)
     add_packet_arguments(parser)
     parser.set_defaults(func=run)
 
@@ -133,14 +120,11 @@ def export_front_end(
 
 
 def run(args: argparse.Namespace) -> int:
-    import dataclasses
-
     from lidar3d.config import load_config
 
-    config = apply_packet_arguments(load_config(args.config), args)
-    if args.topic:
-        config = dataclasses.replace(config, input=dataclasses.replace(config.input, topic=args.topic))
-    summary = export_front_end(args.bags, args.out, scans=args.scans, config=config)
+    config = apply_topic_argument(apply_packet_arguments(load_config(args.config), args), args)
+    selection = scan_selection(args)
+    summary = export_front_end(args.bags, args.out, scans=(selection.start, selection.stop), config=config)
     if not summary.scan_indices:
         print(f"no scan written to {args.out}")
         return 0

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
+from lidar3d.cli.options import add_config_argument, add_topic_argument
 from lidar3d.cli.packet_options import add_packet_arguments, apply_packet_arguments
 
 
@@ -29,8 +30,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file, ROS2 bag folder, or pcap file")
-    parser.add_argument("--topic", metavar="T", help="PointCloud2 topic (default: the only one in the bag)")
-    parser.add_argument("--config", metavar="FILE", help="TOML configuration (sensor model, minimum range)")
+    add_topic_argument(parser)
+    add_config_argument(parser, " (sensor model, minimum range)")
     add_packet_arguments(parser)
     parser.set_defaults(func=run)
 

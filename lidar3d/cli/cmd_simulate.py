@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 
+from lidar3d.cli.options import add_output_arguments
+
 # Kept here (not imported from lidar3d.sim) so that ``lidar3d --help`` stays instant; a test checks
 # that this table matches lidar3d.sim.SCENARIOS.
 SCENARIO_HELP = {
@@ -49,7 +51,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         metavar="SCENARIO",
         help="scenario name (default: loop)",
     )
-    parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    add_output_arguments(
+        parser, what="output folder", overwrite="replace the outputs of an earlier simulation in DIR (default: refused)"
+    )
     parser.add_argument("--seed", type=int, default=0, help="world, noise and GNSS error seed (default: 0)")
     parser.add_argument(
         "--duration",
@@ -72,7 +76,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         action="store_true",
         help="also write point_labels.npz: the object id and class every point hit (moving cars, pedestrians...)",
     )
-    parser.add_argument("--overwrite", action="store_true", help="replace the outputs of an earlier run in DIR")
     parser.set_defaults(func=run)
 
 

@@ -16,6 +16,7 @@ import sys
 from collections.abc import Sequence
 
 from lidar3d import __version__
+from lidar3d.cli.options import HelpFormatter, add_global_arguments
 from lidar3d.errors import Lidar3dError
 
 __all__ = ["build_parser", "entry_point", "main"]
@@ -27,13 +28,15 @@ def build_parser() -> argparse.ArgumentParser:
         description="LiDAR SLAM for Velodyne VLP-16 recordings, in the style of LeGO-LOAM.",
     )
     parser.add_argument("--version", action="version", version=f"lidar3d {__version__}")
-    parser.add_argument("-v", "--verbose", action="store_true", help="log debug messages")
-    parser.add_argument("-q", "--quiet", action="store_true", help="log warnings and errors only")
+    add_global_arguments(parser, top_level=True)
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")
     package = importlib.import_module("lidar3d.cli")
     for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
         if info.name.startswith("cmd_"):
             importlib.import_module(f"lidar3d.cli.{info.name}").register(subparsers)
+    for subparser in subparsers.choices.values():
+        add_global_arguments(subparser, top_level=False)
+        subparser.formatter_class = HelpFormatter  # every subcommand keeps its epilog as written
     return parser
 
 

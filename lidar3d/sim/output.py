@@ -296,7 +296,7 @@ def write_simulation(
     existing = [p for p in (*paths.values(), bag) if p.exists()]
     if existing and not overwrite:
         raise OutputError(
-            f"{out}: already holds simulation outputs ({existing[0].name}); pass overwrite to replace them"
+            f"{out}: already holds simulation outputs ({existing[0].name}); pass --overwrite to replace them"
         )
     if out.exists() and not out.is_dir():
         raise OutputError(f"{out}: exists and is not a folder")
