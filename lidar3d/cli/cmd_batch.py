@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import textwrap
 
 from lidar3d.cli.options import (
     add_config_argument,
@@ -22,13 +23,15 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "batch",
         help="run SLAM on many bags (local processes or Ray), resumable, with an HTML report",
-        description=(
+        description=textwrap.fill(
             "Run SLAM on every bag found in INPUTS, each exactly as 'lidar3d run' would, into "
             "OUT/<name>/. A bag's folder appears only when complete; re-running the same command "
             "skips finished bags (same content, configuration, options and SPAN log), so a killed or "
             "interrupted batch resumes; --overwrite redoes them. Every per-bag option of 'lidar3d run' "
             "(--topic, --start, --max-scans, --map-voxel, --no-loop, --loop-source, --keep-dynamic, "
-            "--gnss-factors, the raw-packet options) applies to every bag. Writes OUT/summary.csv, OUT/summary.json and OUT/report.html."
+            "--gnss-factors, the raw-packet options) applies to every bag. Writes OUT/summary.csv, "
+            "OUT/summary.json and OUT/report.html.",
+            width=88,
         ),
         epilog=(
             "examples:\n"
@@ -37,7 +40,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "  lidar3d batch '/data/2024-05-*/*.bag' --out results/may --span-dir /data/span --extrinsics rig.toml\n"
             "  lidar3d batch /data/sims --out results/sims --span-pattern novatel_span.log "
             "--extrinsics '{parent}/extrinsics.toml'\n"
-            "  RAY_AUTH_MODE=token lidar3d batch /shared/bags --out /shared/results --engine ray --ray-address HOST:6379\n"
+            "  RAY_AUTH_MODE=token lidar3d batch /shared/bags --out /shared/results --engine ray "
+            "--ray-address HOST:6379\n"
             "\n"
             "patterns (--span-pattern, --extrinsics): {stem} bag name without .bag, {name} batch output\n"
             "name, {parent} the bag's folder, {folder} that folder's name; relative paths are taken\n"

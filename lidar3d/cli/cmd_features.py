@@ -38,7 +38,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
             "median time per sub-stage in ms per scan.",
             width=88,
         ),
-        epilog="example:\n  lidar3d features run.bag --out fe --start 100 --max-scans 10\n  pcl_viewer fe/scan_000100/*.pcd",
+        epilog=(
+            "example:\n"
+            "  lidar3d features run.bag --out fe --start 100 --max-scans 10\n"
+            "  pcl_viewer fe/scan_000100/*.pcd"
+        ),
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     parser.add_argument("bags", nargs="+", metavar="BAG", help="ROS1 .bag file(s), ROS2 bag folder, or pcap file(s)")

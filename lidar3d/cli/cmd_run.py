@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import textwrap
 
 from lidar3d.cli.options import (
     add_config_argument,
@@ -22,11 +23,13 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser = subparsers.add_parser(
         "run",
         help="run SLAM on VLP-16 bag(s): trajectory of every scan and a dense map",
-        description=(
+        description=textwrap.fill(
             "Run LeGO-LOAM-style SLAM over one recording (several ROS1 split files read as one "
             "stream). Writes trajectories (TUM, KITTI), map.pcd (the static map: moving objects, found by "
             "free-space ray casting, go to dynamic.pcd), summary.json and config.toml; a folder holding an "
-            "earlier run's outputs is refused unless --overwrite is given."
+            "earlier run's outputs is refused unless --overwrite is given. Ends with the list of "
+            "files written and the headline figures.",
+            width=88,
         ),
         epilog=(
             "examples:\n"
