@@ -4,7 +4,9 @@ One row per bag (:data:`ROW_FIELDS`). The HTML page is self-contained (inline CS
 no network): a sortable table (click a column header; the order is kept in the address as
 ``#sort=<column>:asc|desc``, so a sorted view can be bookmarked or opened directly), links to
 each bag's output folder and evaluation plots (relative, so the whole batch folder can be moved
-or served as it is). Every file is written atomically.
+or served as it is), thumbnails of each bag's top views, and in every empty cell the reason it is
+empty (``path 42 m < 100 m`` where KITTI RPE has no segment, ``no SPAN log``, ``failed, see error``).
+Every file is written atomically.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from typing import Any
 from lidar3d.io.atomic import write_text_atomic
 from lidar3d.summary import RunSummary
 
-__all__ = ["ROW_FIELDS", "ReportPaths", "bag_row", "write_report"]
+__all__ = ["ROW_FIELDS", "THUMBNAIL_PLOTS", "ReportPaths", "bag_row", "blank_reason", "write_report"]
 
 ROW_FIELDS = (
     "name",
@@ -190,6 +192,7 @@ h1{font-size:1.4rem;margin:0 0 .3rem}
 p.meta{color:#5b6670;margin:.2rem 0 1rem}
 ul.totals{display:flex;gap:1.2rem;list-style:none;padding:0;margin:0 0 1rem}
 ul.totals li{background:#f2f4f6;border-radius:6px;padding:.4rem .8rem}
+div.table{overflow-x:auto;padding-right:.5rem}
 table{border-collapse:collapse;width:100%;font-size:.9rem}
 th,td{border-bottom:1px solid #e1e5e9;padding:.35rem .5rem;text-align:left;vertical-align:top}
 td.num{text-align:right;font-variant-numeric:tabular-nums}
@@ -206,10 +209,14 @@ tr:hover td{background:#fafbfc}
 .status-interrupted,.status-not-started{background:#fef9c3;color:#854d0e}
 td.health-lost{color:#991b1b;font-weight:600}
 td.health-degraded{color:#854d0e}
-td.error{color:#991b1b;max-width:32rem;word-break:break-word}
-td.note{color:#854d0e;max-width:32rem;word-break:break-word}
-td.path{max-width:16rem;overflow-wrap:anywhere;color:#5b6670}
-td.plots a{white-space:nowrap;display:inline-block;margin-right:.5rem}
+td.error{color:#991b1b;max-width:22rem;word-break:break-word}
+td.note{color:#854d0e;max-width:22rem;word-break:break-word}
+td.path{max-width:12rem;overflow-wrap:anywhere;color:#5b6670}
+td.plots{min-width:13rem;max-width:20rem}
+td.plots a.thumb{display:inline-block;margin:0 .3rem .3rem 0}
+td.plots img{width:96px;height:auto;border:1px solid #d5dae0;border-radius:3px;background:#fff;display:block}
+td.plots a.link{white-space:nowrap;display:inline-block;margin-right:.5rem;font-size:.8rem}
+span.why{color:#8a949e;font-size:.75rem;font-style:italic}
 a{color:#1d4ed8}
 """
 
@@ -264,9 +271,13 @@ _JS = """
 """
 
 
-def _cell(field: str, kind: str, row: Mapping[str, Any]) -> str:
+def _cell(field: str, kind: str, row: Mapping[str, Any], meta: Mapping[str, Any]) -> str:
     value = row.get(field)
     esc = html.escape
+    reason = blank_reason(field, row, meta)
+    if reason is not None:
+        css = ' class="num"' if kind == "num" else ""
+        return f'<td{css} data-value=""><span class="why">{esc(reason)}</span></td>'
     if field == "name":
         target = row.get("output")
         label = esc(str(value))
@@ -276,8 +287,7 @@ def _cell(field: str, kind: str, row: Mapping[str, Any]) -> str:
         css = "status-" + str(value).replace(" ", "-")
         return f'<td data-value="{esc(str(value))}"><span class="status {css}">{esc(str(value))}</span></td>'
     if field == "plots":
-        links = " ".join(f'<a href="{esc(p)}">{esc(Path(p).stem.replace("_", " "))}</a>' for p in value or [])
-        return f'<td class="plots" data-value="{len(value or [])}">{links}</td>'
+        return _plots_cell(row)
     if field == "span_log":
         text = Path(value).name if value else ""
         title = f"{esc(str(value or ''))} ({esc(str(row.get('span_match') or ''))})"
@@ -294,6 +304,61 @@ def _cell(field: str, kind: str, row: Mapping[str, Any]) -> str:
         data = "" if number is None else repr(number)
         return f'<td class="num" data-value="{data}">{esc(shown)}</td>'
     return f'<td data-value="{esc(str(value or ""))}">{esc(str(value or ""))}</td>'
+
+
+#: Plots shown as thumbnails in the report (the others as links), in this order.
+THUMBNAIL_PLOTS = ("trajectory_loops.png", "eval/top_view.png")
+#: KITTI RPE averages over segments of 100 to 800 m: a shorter path has none.
+_KITTI_SHORTEST_M = 100.0
+
+
+def blank_reason(field: str, row: Mapping[str, Any], meta: Mapping[str, Any]) -> str | None:
+    """Why the report cell ``field`` of ``row`` is empty, in a few words; None when it has a value
+    (or is a cell that always has one)."""
+    if field in ("name", "status"):
+        return None
+    status = row.get("status")
+    if field == "error":
+        return None if row.get("error") or row.get("note") else "none"
+    if field == "span_log":
+        return None if row.get("span_log") else (row.get("span_match") or "no SPAN log requested")
+    if row.get("output") is None:
+        return {"failed": "failed, see error", "not started": "not started"}.get(str(status), str(status))
+    if field == "plots":
+        return None if row.get("plots") else "none written"
+    if field == "health":
+        return None if row.get("health") is not None else "not recorded (older run)"
+    if row.get(field) is not None:
+        return None
+    if field in ("ate_rmse_m", "rpe_rmse_m", "rpe_kitti_percent"):
+        if not row.get("span_log"):
+            return "no SPAN log"
+        if row.get("note"):
+            return "evaluation failed"
+        length = _number(row.get("length_m")) or 0.0
+        if field == "rpe_kitti_percent":
+            return f"path {length:.0f} m < {_KITTI_SHORTEST_M:.0f} m"
+        distance = _number(meta.get("rpe_distance_m"))
+        if field == "rpe_rmse_m" and distance is not None and length < distance:
+            return f"path {length:.0f} m < {distance:g} m"
+        return "no pose pairs"
+    return "not computed"
+
+
+def _plots_cell(row: Mapping[str, Any]) -> str:
+    """Thumbnails of the top views (:data:`THUMBNAIL_PLOTS`), links to the other plots."""
+    esc = html.escape
+    plots = list(row.get("plots") or [])
+    name = str(row.get("name"))
+    thumbs = [f"{name}/{p}" for p in THUMBNAIL_PLOTS if f"{name}/{p}" in plots]
+    others = [p for p in plots if p not in thumbs]
+    parts = [
+        f'<a class="thumb" href="{esc(p)}" title="{esc(Path(p).name)}">'
+        f'<img src="{esc(p)}" alt="{esc(Path(p).stem.replace("_", " "))}" loading="lazy"></a>'
+        for p in thumbs
+    ]
+    parts += [f'<a class="link" href="{esc(p)}">{esc(Path(p).stem.replace("_", " "))}</a>' for p in others]
+    return f'<td class="plots" data-value="{len(plots)}">{"".join(parts)}</td>'
 
 
 def _health_cell(row: Mapping[str, Any]) -> str:
@@ -320,7 +385,7 @@ def _html_text(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> st
     )
     body = "\n".join(
         f'<tr class="bag" data-name="{esc(str(r["name"]))}">'
-        + "".join(_cell(f, k, r) for f, _, k in _COLUMNS)
+        + "".join(_cell(f, k, r, meta) for f, _, k in _COLUMNS)
         + "</tr>"
         for r in rows
     )
@@ -341,7 +406,8 @@ def _html_text(rows: Sequence[Mapping[str, Any]], meta: Mapping[str, Any]) -> st
         + (" &middot; <b>interrupted</b>" if meta.get("interrupted") else "")
         + "</p>\n"
         f'<ul class="totals">{"".join(items)}</ul>\n'
-        f'<table id="bags">\n<thead><tr>{heads}</tr></thead>\n<tbody>\n{body}\n</tbody>\n</table>\n'
+        f'<div class="table"><table id="bags">\n<thead><tr>{heads}</tr></thead>\n<tbody>\n{body}\n</tbody>\n'
+        "</table></div>\n"
         f"<script>{_JS}</script>\n</body>\n</html>\n"
     )
 

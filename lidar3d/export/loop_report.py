@@ -103,10 +103,11 @@ def top_view_png(
     *,
     before_m: np.ndarray | None = None,
     reference_m: np.ndarray | None = None,
-    title: str = "Trajectory with loop closures (top view)",
+    title: str | None = None,
 ) -> bytes:
-    """PNG bytes: the corrected trajectory in x-y, accepted loop closures as segments between the
-    two keyframes, optionally the trajectory before closure and a reference.
+    """PNG bytes: the corrected trajectory in x-y, each accepted loop closure as a numbered segment
+    between its two keyframes with a ring around each end (visible even when the two lie a few
+    centimetres apart, as a good closure's do), optionally the trajectory before closure and a reference.
 
     Args:
         positions_m: (N,3) corrected positions (scans), world frame.
@@ -114,42 +115,48 @@ def top_view_png(
         closures: accepted candidates (others are ignored).
         before_m: (M,3) positions before closure, drawn thin and grey.
         reference_m: (R,3) reference positions (e.g. ground truth in the same frame), dashed.
-        title: figure title.
+        title: figure title; by default it says how many closures there were (or that there were none).
     """
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     positions_m = np.asarray(positions_m, dtype=np.float64).reshape(-1, 3)
     keyframe_positions_m = np.asarray(keyframe_positions_m, dtype=np.float64).reshape(-1, 3)
+    accepted = [c for c in closures if c.accepted and max(c.query, c.match) < len(keyframe_positions_m)]
+    if title is None:
+        title = (
+            f"trajectory (top view) with {len(accepted)} loop closure{'s' * (len(accepted) != 1)}"
+            if accepted
+            else "trajectory (top view): no loop closure accepted"
+        )
     figure = Figure(figsize=(7, 6.5))
     FigureCanvasAgg(figure)
     ax = figure.add_subplot(1, 1, 1)
     if reference_m is not None and len(reference_m):
         ref = np.asarray(reference_m).reshape(-1, 3)
-        ax.plot(ref[:, 0], ref[:, 1], "--", color="0.3", lw=1.0, label="reference")
+        ax.plot(ref[:, 0], ref[:, 1], "--", color="0.3", lw=1.0, label="reference", zorder=1)
     if before_m is not None and len(before_m):
         before = np.asarray(before_m).reshape(-1, 3)
-        ax.plot(before[:, 0], before[:, 1], color="0.65", lw=1.0, label="before loop closure")
+        ax.plot(before[:, 0], before[:, 1], color="0.65", lw=1.0, label="before loop closure", zorder=1)
     if len(positions_m):
-        ax.plot(positions_m[:, 0], positions_m[:, 1], color="tab:blue", lw=1.4, label="trajectory")
-        ax.plot(positions_m[0, 0], positions_m[0, 1], "o", color="tab:green", ms=6, label="start")
-        ax.plot(positions_m[-1, 0], positions_m[-1, 1], "s", color="tab:red", ms=6, label="end")
-    accepted = [c for c in closures if c.accepted]
-    labelled = False
-    for c in accepted:
-        if max(c.query, c.match) >= len(keyframe_positions_m):
-            continue
+        ax.plot(positions_m[:, 0], positions_m[:, 1], color="tab:blue", lw=1.4, label="trajectory", zorder=2)
+        ax.plot(positions_m[0, 0], positions_m[0, 1], "o", color="tab:green", ms=6, label="start", zorder=4)
+        ax.plot(positions_m[-1, 0], positions_m[-1, 1], "s", color="tab:red", ms=6, label="end", zorder=4)
+    for number, c in enumerate(accepted, start=1):
         a, b = keyframe_positions_m[c.match], keyframe_positions_m[c.query]
-        ax.plot(
-            [a[0], b[0]],
-            [a[1], b[1]],
-            "-",
+        label = f"loop closures ({len(accepted)}): match - query keyframe" if number == 1 else None
+        ax.plot([a[0], b[0]], [a[1], b[1]], "-", color="tab:orange", lw=3.0, zorder=3, label=label)
+        ax.plot([a[0], b[0]], [a[1], b[1]], "o", ms=11, mfc="none", mec="tab:orange", mew=2.0, zorder=3)
+        ax.annotate(
+            str(number),
+            (b[0], b[1]),
+            xytext=(7, 7),
+            textcoords="offset points",
+            fontsize=8,
             color="tab:orange",
-            lw=2.0,
-            label=None if labelled else f"loop closures ({len(accepted)})",
+            fontweight="bold",
+            zorder=5,
         )
-        ax.plot([a[0], b[0]], [a[1], b[1]], "o", color="tab:orange", ms=3)
-        labelled = True
     ax.set_aspect("equal", adjustable="datalim")
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")

@@ -11,8 +11,8 @@ Turns a :class:`~lidar3d.metrics.span_eval.SpanEvaluation` (computed by
   3-D/horizontal/vertical/rotation error, INS status, position type, GNSS quality class;
 * ``reference_lidar_tum.txt`` / ``estimate_aligned_tum.txt``: the associated poses in ENU as TUM
   (so ``evo_ape tum reference_lidar_tum.txt estimate_aligned_tum.txt`` reproduces the ATE);
-* ``top_view.png`` (reference coloured by GNSS quality, aligned estimate), ``error_over_time.png``,
-  ``height_profile.png`` (matplotlib, Agg canvas: no display needed).
+* ``top_view.png``, ``error_over_time.png``, ``rotation_error.png``, ``height_profile.png``
+  (:mod:`lidar3d.export.span_plots`).
 """
 
 from __future__ import annotations
@@ -25,8 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar3d.gnss.enu import LocalEnu
-from lidar3d.gnss.gps_time import gps_to_unix_ns
+from lidar3d.export.span_plots import span_plots
 from lidar3d.gnss.novatel import QUALITY_CLASSES, InsStatus, quality_class
 from lidar3d.io.atomic import write_bytes_atomic, write_text_atomic
 from lidar3d.io.trajectory_io import write_tum
@@ -34,15 +33,6 @@ from lidar3d.metrics.span_eval import SpanEvaluation
 from lidar3d.records import Trajectory
 
 __all__ = ["format_span_table", "span_report_dict", "write_span_report"]
-
-_QUALITY_COLOURS = {
-    "RTK fixed": "#1a9850",
-    "RTK float": "#91cf60",
-    "PPP": "#4575b4",
-    "DGNSS/SBAS": "#fdae61",
-    "single": "#d73027",
-    "INS only / none": "#7f7f7f",
-}
 
 
 def _clean(value):
@@ -163,118 +153,6 @@ def _position_type_name(code: int) -> str:
         return str(code)
 
 
-def _png(figure) -> bytes:
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-
-    FigureCanvasAgg(figure)
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=110)
-    return buffer.getvalue()
-
-
-def _all_solutions(result: SpanEvaluation) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """ENU positions (of the IMU) of every INS solution of the reference's log type, their GNSS
-    quality class, and whether the reference kept them."""
-    ref = result.reference
-    group = ("INSPVAX",) if ref.source_log == "INSPVAX" else ("INSPVA", "INSPVAS")
-    messages = [m for m in result.log.ins if m.log in group and m.gps_week > 0]
-    if not messages:
-        return np.zeros((0, 3)), np.zeros(0, dtype=object), np.zeros(0, dtype=bool)
-    enu = LocalEnu(ref.origin).to_enu(
-        [m.latitude_deg for m in messages],
-        [m.longitude_deg for m in messages],
-        [m.height_ellipsoid_m for m in messages],
-    )
-    stamps = gps_to_unix_ns(
-        [m.gps_week for m in messages],
-        [m.gps_seconds for m in messages],
-        result.config.leap_seconds,
-        result.config.time_offset_s,
-    )
-    kept = np.isin(stamps, ref.stamps_ns)
-    if ref.source_log == "INSPVAX":
-        codes = [-1 if m.position_type is None else int(m.position_type) for m in messages]
-    else:  # INSPVA/INSPVAS: the position type the reference took from the nearest BESTPOS
-        index = np.searchsorted(ref.stamps_ns, stamps).clip(0, len(ref) - 1)
-        codes = [int(ref.position_type[i]) for i in index]
-    labels = np.array([quality_class(code) for code in codes], dtype=object)
-    return enu, labels, kept
-
-
-def _broken(values: np.ndarray, ev) -> np.ndarray:
-    """``values`` as float with NaN inserted where the associated poses have a gap (> 1 s), so
-    plotted lines do not bridge stretches without reference."""
-    values = np.asarray(values, dtype=float).copy()
-    gaps = np.flatnonzero(np.diff(ev.stamps_ns) > 1_000_000_000) + 1
-    return np.insert(values, gaps, np.nan) if len(gaps) else values
-
-
-def _plots(result: SpanEvaluation) -> dict[str, bytes]:
-    from matplotlib.figure import Figure
-
-    ev = result.evaluation
-    ref_p = ev.T_ref_lidar[:, :3, 3]
-    est_p = ev.T_ref_lidar_estimate[:, :3, 3]
-    t = _broken((ev.stamps_ns - ev.stamps_ns[0]) / 1e9, ev)
-    plots = {}
-
-    figure = Figure(figsize=(7, 6))
-    ax = figure.add_subplot(1, 1, 1)
-    all_enu, all_classes, all_kept = _all_solutions(result)
-    for label in QUALITY_CLASSES:
-        for kept, marker, suffix in ((True, "o", ""), (False, "x", " (rejected: INS status / time)")):
-            mask = (all_classes == label) & (all_kept == kept)
-            if mask.any():
-                ax.scatter(
-                    all_enu[mask, 0],
-                    all_enu[mask, 1],
-                    s=6,
-                    marker=marker,
-                    linewidths=0.6,
-                    c=_QUALITY_COLOURS[label],
-                    label=f"{result.reference.source_log}: {label}{suffix}",
-                )
-    ax.plot(
-        _broken(est_p[:, 0], ev),
-        _broken(est_p[:, 1], ev),
-        "-",
-        color="black",
-        linewidth=0.8,
-        label=f"estimate ({ev.alignment.value}), associated poses",
-    )
-    ax.set_xlabel("east [m]")
-    ax.set_ylabel("north [m]")
-    ax.set_aspect("equal", adjustable="datalim")
-    ax.grid(True, linewidth=0.3)
-    ax.legend(fontsize=7, loc="best")
-    ax.set_title(f"top view, ATE rmse {ev.ate.translation_3d_m.rmse:.3f} m")
-    plots["top_view.png"] = _png(figure)
-
-    figure = Figure(figsize=(8, 4))
-    ax = figure.add_subplot(1, 1, 1)
-    ax.plot(t, _broken(ev.errors.translation_3d_m, ev), label="3-D", linewidth=0.9)
-    ax.plot(t, _broken(ev.errors.horizontal_m, ev), label="horizontal", linewidth=0.9)
-    ax.plot(t, _broken(ev.errors.signed_vertical_m, ev), label="vertical (signed)", linewidth=0.9)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("error [m]")
-    ax.grid(True, linewidth=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("absolute position error")
-    plots["error_over_time.png"] = _png(figure)
-
-    figure = Figure(figsize=(8, 4))
-    ax = figure.add_subplot(1, 1, 1)
-    ax.plot(t, _broken(ref_p[:, 2], ev), label="reference", linewidth=1.0)
-    ax.plot(t, _broken(est_p[:, 2], ev), label="estimate (aligned)", linewidth=0.9)
-    ax.set_xlabel("time [s]")
-    ax.set_ylabel("up [m]")
-    ax.grid(True, linewidth=0.3)
-    ax.legend(fontsize=8)
-    ax.set_title("height profile (ENU up, ellipsoidal)")
-    plots["height_profile.png"] = _png(figure)
-    return plots
-
-
 def write_span_report(result: SpanEvaluation, out_dir: str | Path) -> list[Path]:
     """Write the report files into ``out_dir`` (created if needed); returns their paths."""
     out = Path(out_dir)
@@ -291,7 +169,7 @@ def write_span_report(result: SpanEvaluation, out_dir: str | Path) -> list[Path]
         path = out / name
         write_tum(path, Trajectory(ev.stamps_ns, poses))
         written.append(path)
-    for name, data in _plots(result).items():
+    for name, data in span_plots(result).items():
         path = out / name
         write_bytes_atomic(path, data)
         written.append(path)
