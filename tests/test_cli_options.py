@@ -156,3 +156,71 @@ def test_simulate_names_the_overwrite_flag(tmp_path, capsys):
     capsys.readouterr()
     assert main(["simulate", "loop", "--out", str(out), "--duration", "0.3"]) == 1
     assert "pass --overwrite to replace them" in capsys.readouterr().err
+
+
+# -- Ray: a refused token is named in one line, Ray's own output kept off the terminal ------------
+
+
+def _fake_ray(monkeypatch, message: str):
+    """A stand-in ``ray`` whose ``init`` logs as Ray's C++ core does (to file descriptor 2) and fails."""
+    import os
+    import sys
+    import types
+
+    ray = types.ModuleType("ray")
+    exceptions = types.ModuleType("ray.exceptions")
+
+    class RayError(Exception):
+        pass
+
+    exceptions.RayError = RayError
+    ray.exceptions = exceptions
+    ray.is_initialized = lambda: False
+
+    def init(**kwargs):
+        os.write(2, (message + "\n").encode())
+        raise ConnectionError("Failed to connect to Ray cluster at 192.0.2.2:6391")
+
+    ray.init = init
+    monkeypatch.setitem(sys.modules, "ray", ray)
+    monkeypatch.setitem(sys.modules, "ray.exceptions", exceptions)
+
+
+AUTH_LINE = (
+    "[2026-12-02 04:45:18,233 W 27721 27721] gcs_client.cc:210: Failed to get cluster ID from GCS server: "
+    "Unauthenticated: RPC error: InvalidAuthToken: Authentication token is missing or incorrect"
+)
+
+
+@pytest.mark.parametrize("mode", [None, "token"])
+def test_ray_token_refusal_is_one_line_naming_what_to_set(mode, tmp_path, monkeypatch, capfd):
+    from lidar3d.batch.engines import run_ray
+    from lidar3d.errors import ConfigError
+
+    _fake_ray(monkeypatch, AUTH_LINE)
+    if mode is None:
+        monkeypatch.delenv("RAY_AUTH_MODE", raising=False)
+    else:
+        monkeypatch.setenv("RAY_AUTH_MODE", mode)
+    log = tmp_path / ".batch" / "ray.log"
+    with pytest.raises(ConfigError) as error:
+        run_ray([], None, workers=1, address="127.0.0.1:6391", log_path=log)
+    text = str(error.value)
+    assert "\n" not in text and text.startswith("cannot reach Ray at 127.0.0.1:6391: ")
+    if mode is None:
+        assert "set RAY_AUTH_MODE=token" in text and "RAY_AUTH_TOKEN" in text
+    else:
+        assert "refused this client's token" in text
+    assert f"Ray's log: {log}" in text
+    assert "InvalidAuthToken" in log.read_text()  # kept, but not on the terminal:
+    captured = capfd.readouterr()
+    assert "InvalidAuthToken" not in captured.err + captured.out
+
+
+def test_ray_other_connection_failure_keeps_its_reason(tmp_path, monkeypatch):
+    from lidar3d.batch.engines import run_ray
+    from lidar3d.errors import ConfigError
+
+    _fake_ray(monkeypatch, "some other Ray message")
+    with pytest.raises(ConfigError, match=r"cannot start or reach Ray at h:1: Failed to connect to Ray cluster"):
+        run_ray([], None, workers=1, address="h:1", log_path=tmp_path / "ray.log")

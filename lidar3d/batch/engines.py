@@ -15,7 +15,12 @@ failed and every other bag still runs.
 (``num_cpus`` = workers) or on an existing cluster (``address``; ``"auto"`` for the one this
 machine belongs to). Ray is imported only here. Ctrl-C cancels the tasks (Ray raises
 KeyboardInterrupt inside them, and they clean up like local jobs). Per-scan progress is not
-reported from Ray tasks, only finished bags.
+reported from Ray tasks, only finished bags. Ray's own output while it connects and shuts down goes
+to a log file (the batch's ``.batch/ray.log``), and a cluster that refuses the client's
+authentication token (Ray 2.5x+ with ``ray start --head`` and a token) is reported in one line
+naming ``RAY_AUTH_MODE=token`` and where the token goes. Workers write each bag's folder themselves,
+at the path the driver gives: on a cluster the batch folder must be on a filesystem every node
+mounts at the same path (nothing is sent back through Ray's object store but the small result).
 """
 
 from __future__ import annotations
@@ -24,18 +29,20 @@ import contextlib
 import logging
 import os
 import signal
+import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from enum import Enum
+from pathlib import Path
 from typing import Any, Protocol
 
 from lidar3d.batch.jobs import THREAD_VARIABLES, BagJob, JobResult, JobStatus, limit_threads, process_job
 from lidar3d.errors import ConfigError
 
-__all__ = ["Engine", "EngineSink", "run_local", "run_ray"]
+__all__ = ["AUTH_HINT", "Engine", "EngineSink", "ray_output_to", "run_local", "run_ray"]
 
 log = logging.getLogger(__name__)
 
@@ -257,6 +264,52 @@ def _ray_error_result(job: BagJob, error: BaseException) -> JobResult:
     return JobResult(job.name, JobStatus.FAILED, error=f"Ray: {type(error).__name__}: {error}")
 
 
+#: What Ray logs when the cluster wants a token the client did not send (or sent wrong).
+_AUTH_FAILURE_MARKS = ("InvalidAuthToken", "Unauthenticated", "AuthenticationError")
+AUTH_HINT = (
+    "the cluster uses token authentication: set RAY_AUTH_MODE=token and give the cluster's token as "
+    "RAY_AUTH_TOKEN, RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token ('ray get-auth-token' on the head prints it)"
+)
+
+
+@contextlib.contextmanager
+def ray_output_to(log_path: Path | None) -> Iterator[None]:
+    """Send what is written to file descriptor 2 (Ray's C++ core logs it there, and Python's
+    ``sys.stderr``) into ``log_path`` (appended) while the block runs; None: leave stderr alone."""
+    if log_path is None:
+        yield
+        return
+    log_path.parent.mkdir(parents=True, exist_ok=True)
+    sys.stderr.flush()
+    saved = os.dup(2)
+    log_fd = os.open(log_path, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+    try:
+        os.dup2(log_fd, 2)
+        yield
+    finally:
+        with contextlib.suppress(Exception):
+            sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(log_fd)
+
+
+def _connect_error(address: str | None, error: BaseException, log_path: Path | None) -> ConfigError:
+    """One line for a failed ``ray.init``: what to set when the cluster refused the token."""
+    logged = log_path.read_text(errors="replace") if log_path is not None and log_path.is_file() else ""
+    where = f" at {address}" if address else ""
+    see = f" (Ray's log: {log_path})" if log_path is not None else ""
+    if any(mark in logged or mark in str(error) or mark in type(error).__name__ for mark in _AUTH_FAILURE_MARKS):
+        if os.environ.get("RAY_AUTH_MODE", "").lower() == "token":
+            return ConfigError(
+                f"cannot reach Ray{where}: the cluster refused this client's token (RAY_AUTH_TOKEN, "
+                f"RAY_AUTH_TOKEN_PATH or ~/.ray/auth_token); give the cluster's ('ray get-auth-token' on the head){see}"
+            )
+        return ConfigError(f"cannot reach Ray{where}: authentication failed; {AUTH_HINT}{see}")
+    first_line = (str(error).strip().splitlines() or [type(error).__name__])[0]
+    return ConfigError(f"cannot start or reach Ray{where}: {first_line}{see}")
+
+
 def run_ray(
     jobs: Sequence[BagJob],
     sink: EngineSink,
@@ -264,18 +317,22 @@ def run_ray(
     workers: int | None,
     address: str | None = None,
     threads: int | None = 1,
+    log_path: Path | None = None,
 ) -> bool:
     """Run ``jobs`` as Ray tasks; returns True when interrupted by Ctrl-C.
 
     Without ``address`` a local Ray instance with ``workers`` CPUs is started (and stopped at the
     end); with one, the existing cluster is joined and at most ``workers`` tasks (all when None)
-    are in flight. An already initialised Ray session is used as it is.
+    are in flight. An already initialised Ray session is used as it is. Ray's own messages while it
+    starts and stops (connection retries, token warnings) go to ``log_path`` rather than the
+    terminal; a refused authentication token is named in the error with what to set.
 
     Raises:
-        ConfigError: Ray is not installed, or the cluster cannot be reached.
+        ConfigError: Ray is not installed, or the cluster cannot be reached (or refused the token).
     """
     try:
         import ray
+        import ray.exceptions
     except ImportError:
         raise ConfigError("--engine ray needs Ray: pip install 'lidar3d[ray]'") from None
 
@@ -283,12 +340,13 @@ def run_ray(
     if owns_session:
         options: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False, "configure_logging": False}
         try:
-            if address:
-                ray.init(address=address, **options)
-            else:
-                ray.init(num_cpus=workers, **options)
-        except (ConnectionError, RuntimeError, ValueError) as err:
-            raise ConfigError(f"cannot start or reach Ray{f' at {address}' if address else ''}: {err}") from err
+            with ray_output_to(log_path):
+                if address:
+                    ray.init(address=address, **options)
+                else:
+                    ray.init(num_cpus=workers, **options)
+        except (ConnectionError, RuntimeError, ValueError, ray.exceptions.RayError) as err:
+            raise _connect_error(address, err, log_path) from err
     env = {name: str(threads) for name in THREAD_VARIABLES} if threads is not None else {}
     task = ray.remote(_ray_job).options(
         num_cpus=1, max_retries=0, runtime_env={"env_vars": env} if env else None, name="lidar3d-batch-bag"
@@ -335,5 +393,6 @@ def run_ray(
                 in_flight.clear()
     finally:
         if owns_session:
-            ray.shutdown()
+            with ray_output_to(log_path):
+                ray.shutdown()
     return interrupted

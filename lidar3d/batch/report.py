@@ -187,16 +187,17 @@ def _fmt(value: Any, digits: int) -> str:
 _DIGITS = {"length_m": 1, "runtime_s": 1, "scans_per_s": 1, "ate_rmse_m": 3, "rpe_rmse_m": 3, "rpe_kitti_percent": 2}
 
 _CSS = """
-body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;margin:1.5rem;color:#1d2329;background:#fff}
+body{font-family:system-ui,-apple-system,"Segoe UI",sans-serif;margin:1.2rem;color:#1d2329;background:#fff}
 h1{font-size:1.4rem;margin:0 0 .3rem}
 p.meta{color:#5b6670;margin:.2rem 0 1rem}
 ul.totals{display:flex;gap:1.2rem;list-style:none;padding:0;margin:0 0 1rem}
 ul.totals li{background:#f2f4f6;border-radius:6px;padding:.4rem .8rem}
 div.table{overflow-x:auto;padding-right:.5rem}
-table{border-collapse:collapse;width:100%;font-size:.9rem}
-th,td{border-bottom:1px solid #e1e5e9;padding:.35rem .5rem;text-align:left;vertical-align:top}
+table{border-collapse:collapse;width:100%;font-size:.85rem}
+th,td{border-bottom:1px solid #e1e5e9;padding:.3rem .4rem;text-align:left;vertical-align:top}
+td.health-ok,td.health-lost,td.health-degraded{white-space:nowrap}
 td.num{text-align:right;font-variant-numeric:tabular-nums}
-th{background:#f7f8fa;position:sticky;top:0;white-space:nowrap}
+th{background:#f7f8fa;position:sticky;top:0;vertical-align:bottom}
 th button{all:unset;cursor:pointer;font-weight:600}
 th button:focus-visible{outline:2px solid #3b82f6}
 th[aria-sort=ascending] button::after{content:" \\25B2";font-size:.7em}
@@ -209,12 +210,12 @@ tr:hover td{background:#fafbfc}
 .status-interrupted,.status-not-started{background:#fef9c3;color:#854d0e}
 td.health-lost{color:#991b1b;font-weight:600}
 td.health-degraded{color:#854d0e}
-td.error{color:#991b1b;max-width:22rem;word-break:break-word}
-td.note{color:#854d0e;max-width:22rem;word-break:break-word}
-td.path{max-width:12rem;overflow-wrap:anywhere;color:#5b6670}
-td.plots{min-width:13rem;max-width:20rem}
-td.plots a.thumb{display:inline-block;margin:0 .3rem .3rem 0}
-td.plots img{width:96px;height:auto;border:1px solid #d5dae0;border-radius:3px;background:#fff;display:block}
+td.error{color:#991b1b;max-width:15rem;word-break:break-word}
+td.note{color:#854d0e;max-width:15rem;word-break:break-word}
+td.path{max-width:9rem;overflow-wrap:anywhere;color:#5b6670}
+td.plots{width:11.5rem;min-width:11.5rem}
+td.plots a.thumb{display:inline-block;vertical-align:top;margin:0 .25rem .25rem 0}
+td.plots img{height:74px;width:auto;max-width:84px;object-fit:contain;border:1px solid #d5dae0;border-radius:3px;background:#fff;display:block}
 td.plots a.link{white-space:nowrap;display:inline-block;margin-right:.5rem;font-size:.8rem}
 span.why{color:#8a949e;font-size:.75rem;font-style:italic}
 a{color:#1d4ed8}
@@ -277,7 +278,8 @@ def _cell(field: str, kind: str, row: Mapping[str, Any], meta: Mapping[str, Any]
     reason = blank_reason(field, row, meta)
     if reason is not None:
         css = ' class="num"' if kind == "num" else ""
-        return f'<td{css} data-value=""><span class="why">{esc(reason)}</span></td>'
+        title = esc(str(row.get("span_match") or "")) if field == "span_log" else esc(reason)
+        return f'<td{css} data-value="" title="{title}"><span class="why">{esc(reason)}</span></td>'
     if field == "name":
         target = row.get("output")
         label = esc(str(value))
@@ -321,9 +323,9 @@ def blank_reason(field: str, row: Mapping[str, Any], meta: Mapping[str, Any]) ->
     if field == "error":
         return None if row.get("error") or row.get("note") else "none"
     if field == "span_log":
-        return None if row.get("span_log") else (row.get("span_match") or "no SPAN log requested")
+        return None if row.get("span_log") else _short(str(row.get("span_match") or "no SPAN log requested"))
     if row.get("output") is None:
-        return {"failed": "failed, see error", "not started": "not started"}.get(str(status), str(status))
+        return {"not started": "not run"}.get(str(status), str(status))
     if field == "plots":
         return None if row.get("plots") else "none written"
     if field == "health":
@@ -343,6 +345,11 @@ def blank_reason(field: str, row: Mapping[str, Any], meta: Mapping[str, Any]) ->
             return f"path {length:.0f} m < {distance:g} m"
         return "no pose pairs"
     return "not computed"
+
+
+def _short(text: str) -> str:
+    """``text`` with its absolute paths cut to their file names (the full text is in the row's data)."""
+    return " ".join(Path(word).name if word.startswith("/") else word for word in text.split(" "))
 
 
 def _plots_cell(row: Mapping[str, Any]) -> str:

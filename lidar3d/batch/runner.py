@@ -388,7 +388,14 @@ def run_batch(
                         job_function=job_function,
                     )
                 else:
-                    interrupted = run_ray(todo, collector, workers=n_workers, address=ray_address, threads=threads)
+                    interrupted = run_ray(
+                        todo,
+                        collector,
+                        workers=n_workers,
+                        address=ray_address,
+                        threads=threads,
+                        log_path=out / STATE_DIR / "ray.log",
+                    )
         except KeyboardInterrupt:
             interrupted = True
         finally:

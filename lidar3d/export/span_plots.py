@@ -119,7 +119,9 @@ def _top_view(result: SpanEvaluation):
     keep[_gaps(ev.stamps_ns) - 1] = False
     segment_error = 0.5 * (error[:-1] + error[1:])
     upper = float(np.nanmax(error)) if len(error) and np.isfinite(error).any() else 1.0
-    lines = LineCollection(segments[keep], array=segment_error[keep], cmap=ERROR_COLOUR_MAP, linewidths=2.2, zorder=3)
+    lines = LineCollection(
+        list(segments[keep]), array=segment_error[keep], cmap=ERROR_COLOUR_MAP, linewidths=2.2, zorder=3
+    )
     lines.set_clim(0.0, max(upper, 1e-6))
     ax.add_collection(lines)
     colour_bar = figure.colorbar(lines, ax=ax, shrink=0.8, pad=0.02)
