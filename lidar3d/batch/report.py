@@ -215,7 +215,8 @@ td.note{color:#854d0e;max-width:15rem;word-break:break-word}
 td.path{max-width:9rem;overflow-wrap:anywhere;color:#5b6670}
 td.plots{width:11.5rem;min-width:11.5rem}
 td.plots a.thumb{display:inline-block;vertical-align:top;margin:0 .25rem .25rem 0}
-td.plots img{height:74px;width:auto;max-width:84px;object-fit:contain;border:1px solid #d5dae0;border-radius:3px;background:#fff;display:block}
+td.plots img{height:74px;width:auto;max-width:84px;object-fit:contain;display:block;
+border:1px solid #d5dae0;border-radius:3px;background:#fff}
 td.plots a.link{white-space:nowrap;display:inline-block;margin-right:.5rem;font-size:.8rem}
 span.why{color:#8a949e;font-size:.75rem;font-style:italic}
 a{color:#1d4ed8}

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import os
 import sys
+from typing import Any
 
 import numpy as np
 
@@ -34,7 +35,7 @@ def show_view_window(view: RunView) -> None:  # pragma: no cover - needs a displ
     shade = np.clip((z - low) / max(float(high - low), 1e-6), 0.0, 1.0)
     cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(view.points_m))
     cloud.colors = o3d.utility.Vector3dVector(colormaps["turbo"](shade)[:, :3])
-    geometries = [cloud]
+    geometries: list[Any] = [cloud]
     if len(view.trajectory_m) > 1:
         lines = o3d.geometry.LineSet(
             o3d.utility.Vector3dVector(view.trajectory_m),
