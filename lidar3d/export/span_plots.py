@@ -104,7 +104,7 @@ def _top_view(result: SpanEvaluation):
                 ax.scatter(
                     all_enu[mask, 0],
                     all_enu[mask, 1],
-                    s=14,
+                    s=8,
                     marker=marker,
                     linewidths=0.6,
                     c=QUALITY_COLOURS[label],
@@ -120,7 +120,7 @@ def _top_view(result: SpanEvaluation):
     segment_error = 0.5 * (error[:-1] + error[1:])
     upper = float(np.nanmax(error)) if len(error) and np.isfinite(error).any() else 1.0
     lines = LineCollection(
-        list(segments[keep]), array=segment_error[keep], cmap=ERROR_COLOUR_MAP, linewidths=2.2, zorder=3
+        list(segments[keep]), array=segment_error[keep], cmap=ERROR_COLOUR_MAP, linewidths=2.6, zorder=3
     )
     lines.set_clim(0.0, max(upper, 1e-6))
     ax.add_collection(lines)
