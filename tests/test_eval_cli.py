@@ -132,6 +132,7 @@ def test_eval_cli_writes_report_at_noise_level(scene, capsys):
         "errors.csv",
         "top_view.png",
         "error_over_time.png",
+        "rotation_error.png",
         "height_profile.png",
         "reference_lidar_tum.txt",
         "estimate_aligned_tum.txt",
@@ -364,3 +365,30 @@ def test_eval_on_real_span_stream(tmp_path, capsys):
     report = json.loads((tmp_path / "o" / "report.json").read_text())
     assert report["ate"]["translation_3d_m"]["max"] < 1e-4  # TUM text precision (1e-6 m, 1e-9 quaternion)
     assert report["association"]["gnss_quality"] == {"PPP": 1145}
+
+
+def test_plots_draw_the_estimate_over_the_reference_coloured_by_error(scene):
+    """Issue 22: at centimetre error the estimate stays visible (drawn above the reference, coloured
+    by its error with a colour bar in metres); the height axis says ENU up, not ellipsoidal; a
+    rotation-error plot exists."""
+    from matplotlib.collections import LineCollection, PathCollection
+
+    from lidar3d.export.span_plots import span_figures
+
+    result = evaluate_span_files(
+        scene["root"] / "estimate_tum.txt", scene["log"], extrinsics_path=scene["root"] / "extrinsic.yaml"
+    )
+    figures = span_figures(result)
+    assert set(figures) == {"top_view.png", "error_over_time.png", "rotation_error.png", "height_profile.png"}
+    top = figures["top_view.png"].axes[0]
+    estimate = next(c for c in top.collections if isinstance(c, LineCollection))
+    reference = [c for c in top.collections if isinstance(c, PathCollection)]
+    assert reference and all(estimate.get_zorder() > c.get_zorder() for c in reference)
+    errors = result.evaluation.errors.translation_3d_m
+    assert len(estimate.get_array()) == len(errors) - 1 and estimate.get_array().max() <= errors.max()
+    assert figures["top_view.png"].axes[1].get_ylabel() == "estimate: 3-D position error [m]"
+    height = figures["height_profile.png"].axes[0]
+    assert height.get_ylabel() == "ENU up, above the origin [m]" and "relative to the origin" in height.get_title()
+    rotation = figures["rotation_error.png"].axes[0]
+    assert rotation.get_ylabel() == "rotation error [deg]"
+    assert np.allclose(rotation.get_lines()[0].get_ydata(), result.evaluation.errors.rotation_deg, equal_nan=True)

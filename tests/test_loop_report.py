@@ -74,3 +74,21 @@ def test_g2o_and_top_view_files(tmp_path):
     data = png.read_bytes()
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
     assert not list(tmp_path.glob(".*tmp*"))  # atomic writes leave no temporaries
+
+
+def test_top_view_title_is_honest_and_closures_are_visible():
+    """Issue 22: no "with loop closures" when there were none; a closure whose keyframes lie 2 cm
+    apart is still drawn as a ring around each end, numbered."""
+    from lidar3d.export.loop_report import top_view_figure
+
+    positions = np.column_stack([np.linspace(0, 50, 51), np.zeros(51), np.zeros(51)])
+    keyframes = positions.copy()
+    keyframes[50] = keyframes[0] + [0.02, 0.0, 0.0]  # back at the start: a 2 cm closure
+    none = top_view_figure(positions, keyframes, [_candidate(50, 0, Verdict.LOW_OVERLAP, "no")])
+    assert none.axes[0].get_title() == "trajectory (top view): no loop closure accepted"
+    one = top_view_figure(positions, keyframes, [_candidate(50, 0, Verdict.ACCEPTED, "ok")])
+    ax = one.axes[0]
+    assert ax.get_title() == "trajectory (top view) with 1 loop closure"
+    rings = [line for line in ax.get_lines() if line.get_marker() == "o" and line.get_markersize() >= 10]
+    assert len(rings) == 1 and len(rings[0].get_xdata()) == 2
+    assert [text.get_text() for text in ax.texts] == ["1"]

@@ -403,3 +403,18 @@ def test_featureless_sweeps_and_duplicates_reach_the_summary(sweeps, tmp_path, c
     assert np.array_equal(trajectory.stamps_ns, [s.stamp_ns for s in sweeps[10:18]])
     step = np.linalg.norm(np.diff(trajectory.positions_m, axis=0), axis=1)
     assert step.max() < 0.5  # about 0.3 m per sweep here: no jump
+
+
+def test_run_ends_with_the_files_written_and_the_headline(full_run):
+    """Issue 22: one line per file of the folder with what it holds, then the headline figures."""
+    from lidar3d.cli.run_listing import OUTPUT_DESCRIPTIONS, format_run_listing
+
+    summary = _summary(full_run)
+    lines = format_run_listing(summary, full_run).splitlines()
+    paths = [entry.path for entry in summary.outputs] + ["summary.json"]
+    assert lines[0] == f"wrote {len(paths)} files to {full_run}/:"
+    for path, line in zip(paths, lines[1:]):
+        assert line.split()[0] == path and line.endswith(OUTPUT_DESCRIPTIONS[path][1]), line
+    assert f"{summary.scans} poses" in lines[1 + paths.index("trajectory_tum.txt")]
+    assert lines[-3].startswith(f"{summary.scans} scans, ") and lines[-2].startswith("health: ")
+    assert re.match(r"ATE: \d+\.\d{3} m rmse, rotation \d+\.\d{3} deg rmse \(report in .*eval\)$", lines[-1])

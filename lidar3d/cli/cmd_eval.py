@@ -69,6 +69,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from lidar3d.cli.run_listing import format_file_listing
     from lidar3d.config import config_with, load_config
     from lidar3d.errors import ConfigError
     from lidar3d.export.span_report import format_span_table, write_span_report
@@ -97,9 +98,9 @@ def run(args: argparse.Namespace) -> int:
         hold_out_period_s=0.0 if fusion is None else fusion.hold_out_period_s,
         held_out_only=args.held_out,
     )
-    write_span_report(result, args.out)
+    written = write_span_report(result, args.out)
     print(format_span_table(result))
-    print(f"report: {args.out}")
+    print(format_file_listing(written, args.out, prefix="eval/"))
     return 0
 
 

@@ -11,7 +11,7 @@ from pathlib import Path
 
 from lidar3d.summary import RunSummary
 
-__all__ = ["OUTPUT_DESCRIPTIONS", "describe_output", "format_run_listing"]
+__all__ = ["OUTPUT_DESCRIPTIONS", "describe_output", "format_file_listing", "format_run_listing", "headline"]
 
 #: What each file of a run folder holds, and the unit of its manifest ``rows`` count.
 OUTPUT_DESCRIPTIONS: dict[str, tuple[str, str]] = {
@@ -46,6 +46,16 @@ def describe_output(path: str, rows: int | None) -> tuple[str, str]:
     unit, text = OUTPUT_DESCRIPTIONS.get(path, ("", ""))
     count = f"{rows} {unit or 'rows'}" if rows is not None else ""
     return count, text
+
+
+def format_file_listing(paths, out_dir: Path | str, *, prefix: str = "") -> str:
+    """``wrote N files to DIR/:`` and one line per file of ``paths`` (inside ``out_dir``) with what it
+    holds; ``prefix`` is the files' folder inside a run folder (``"eval/"``), for their descriptions."""
+    names = [Path(p).relative_to(out_dir).as_posix() for p in paths]
+    width = max((len(name) for name in names), default=0)
+    lines = [f"wrote {len(names)} files to {out_dir}/:"]
+    lines += [f"  {name:<{width}}  {describe_output(prefix + name, None)[1]}".rstrip() for name in names]
+    return "\n".join(lines)
 
 
 def format_run_listing(summary: RunSummary, out_dir: Path | str) -> str:

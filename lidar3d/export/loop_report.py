@@ -20,6 +20,7 @@ from lidar3d.loop.records import LoopCandidate
 __all__ = [
     "LOOPS_CSV_COLUMNS",
     "loops_csv_text",
+    "top_view_figure",
     "top_view_png",
     "write_loops_csv",
     "write_pose_graph_g2o",
@@ -96,7 +97,14 @@ def write_pose_graph_g2o(path: str | Path, g2o_text: str) -> Path:
     return Path(path)
 
 
-def top_view_png(
+def top_view_png(*args, **kwargs) -> bytes:
+    """PNG bytes of :func:`top_view_figure` (same arguments)."""
+    buffer = io.BytesIO()
+    top_view_figure(*args, **kwargs).savefig(buffer, format="png", dpi=110)
+    return buffer.getvalue()
+
+
+def top_view_figure(
     positions_m: np.ndarray,
     keyframe_positions_m: np.ndarray,
     closures: Sequence[LoopCandidate],
@@ -104,10 +112,11 @@ def top_view_png(
     before_m: np.ndarray | None = None,
     reference_m: np.ndarray | None = None,
     title: str | None = None,
-) -> bytes:
-    """PNG bytes: the corrected trajectory in x-y, each accepted loop closure as a numbered segment
-    between its two keyframes with a ring around each end (visible even when the two lie a few
-    centimetres apart, as a good closure's do), optionally the trajectory before closure and a reference.
+):
+    """A matplotlib figure (Agg canvas): the corrected trajectory in x-y, each accepted loop closure
+    as a numbered segment between its two keyframes with a ring around each end (visible even when
+    the two lie a few centimetres apart, as a good closure's do), optionally the trajectory before
+    closure and a reference.
 
     Args:
         positions_m: (N,3) corrected positions (scans), world frame.
@@ -164,9 +173,7 @@ def top_view_png(
     ax.grid(True, lw=0.3)
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="best", fontsize=8)
-    buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=110)
-    return buffer.getvalue()
+    return figure
 
 
 def write_top_view(path: str | Path, *args, **kwargs) -> Path:

@@ -23,7 +23,7 @@ from lidar3d.gnss.gps_time import gps_to_unix_ns
 from lidar3d.gnss.novatel import QUALITY_CLASSES, quality_class
 from lidar3d.metrics.span_eval import SpanEvaluation
 
-__all__ = ["QUALITY_COLOURS", "span_plots"]
+__all__ = ["ERROR_COLOUR_MAP", "QUALITY_COLOURS", "span_figures", "span_plots"]
 
 QUALITY_COLOURS = {
     "RTK fixed": "#1a9850",
@@ -204,13 +204,18 @@ def _height_profile(result: SpanEvaluation, t_s: np.ndarray):
     return figure
 
 
-def span_plots(result: SpanEvaluation) -> dict[str, bytes]:
-    """The report's plots as PNG bytes, by file name (see the module docstring)."""
+def span_figures(result: SpanEvaluation) -> dict:
+    """The report's plots as matplotlib figures (Agg canvas), by file name."""
     ev = result.evaluation
     t_s = _broken((ev.stamps_ns - ev.stamps_ns[0]) / 1e9, ev.stamps_ns)
     return {
-        "top_view.png": _png(_top_view(result)),
-        "error_over_time.png": _png(_error_over_time(result, t_s)),
-        "rotation_error.png": _png(_rotation_error(result, t_s)),
-        "height_profile.png": _png(_height_profile(result, t_s)),
+        "top_view.png": _top_view(result),
+        "error_over_time.png": _error_over_time(result, t_s),
+        "rotation_error.png": _rotation_error(result, t_s),
+        "height_profile.png": _height_profile(result, t_s),
     }
+
+
+def span_plots(result: SpanEvaluation) -> dict[str, bytes]:
+    """The report's plots as PNG bytes, by file name (see the module docstring)."""
+    return {name: _png(figure) for name, figure in span_figures(result).items()}
