@@ -13,7 +13,7 @@ its header (ROS1: the index position and chunk count; ROS2: metadata.yaml), its 
 index, the sqlite/mcap footer) or one of the sampled blocks. It is still a sample, not a full
 hash: reading a few MiB per bag keeps a re-run over hundreds of multi-GB bags fast. A bag edited
 in place at exactly the same size and only between the sampled blocks goes unnoticed; use
-``--force`` after such surgery. Small files (up to ``2 * EDGE_BYTES``) are hashed whole.
+``--overwrite`` after such surgery. Small files (up to ``2 * EDGE_BYTES``) are hashed whole.
 
 A *job fingerprint* adds everything else that decides the outputs: the resolved configuration
 (as TOML text), the content fingerprints of the matched SPAN log and of the extrinsic file, and
