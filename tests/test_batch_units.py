@@ -368,3 +368,40 @@ def test_a_worker_that_dies_fails_only_its_own_bag(tmp_path):
         "three": JobStatus.DONE,
     }
     assert "worker process died" in sink.results["crash"].error
+
+
+def test_report_has_thumbnails_and_a_reason_in_every_blank_cell(tmp_path):
+    """Issue 22: the top views as thumbnails; no empty cell without a word on why it is empty."""
+    for plot in ("short/trajectory_loops.png", "short/eval/top_view.png", "short/eval/rotation_error.png"):
+        (tmp_path / plot).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / plot).write_bytes(b"png")
+    evaluated = example_summary(length_m=42.0)
+    rows = [
+        bag_row(name="bad", bag=Path("/b/bad.bag"), status="failed", batch_dir=tmp_path, error="not a bag"),
+        bag_row(
+            name="short",
+            bag=Path("/b/short.bag"),
+            status="done",
+            batch_dir=tmp_path,
+            summary=evaluated,
+            eval_report={"rpe_kitti": {"n": 0, "translation_percent": None}, "rpe_distance": []},
+            span_log=Path("/logs/short.gps"),
+            rpe_distance_m=100.0,
+        ),
+        bag_row(
+            name="plain",
+            bag=Path("/b/plain.bag"),
+            status="done",
+            batch_dir=tmp_path,
+            summary=example_summary(evaluation=None),
+            span_match="no file /b/plain.gps",
+        ),
+        bag_row(name="later", bag=Path("/b/later.bag"), status="not started", batch_dir=tmp_path),
+    ]
+    meta = {"out_dir": str(tmp_path), "rpe_distance_m": 100.0, "totals": {}}
+    page = write_report(tmp_path, rows, meta).html.read_text()
+    assert page.count("<img ") == 2 and '<img src="short/trajectory_loops.png"' in page
+    assert '<img src="short/eval/top_view.png"' in page and 'href="short/eval/rotation_error.png"' in page
+    assert "path 42 m &lt; 100 m" in page  # KITTI RPE and RPE 100 m of a 42 m drive
+    assert "no SPAN log" in page and "no file plain.gps" in page and "not run" in page
+    assert re.search(r"<td[^>]*>\s*</td>", page) is None, "an empty cell without its reason"
