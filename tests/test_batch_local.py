@@ -157,7 +157,7 @@ def test_report_renders_and_sorts_in_chromium(first_run, tmp_path):
     assert order == sorted(expected)
 
 
-def test_rerun_skips_finished_bags_and_force_redoes_them(first_run, drives):
+def test_rerun_skips_finished_bags_and_overwrite_redoes_them(first_run, drives):
     out = first_run.out_dir
     stamps = {n: _mtime(out / NAMES[n] / JOB_FILE) for n in GOOD}
     trajectories = {n: (out / NAMES[n] / "trajectory_tum.txt").read_bytes() for n in GOOD}
