@@ -28,8 +28,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from lidar3d.mapping.nearest import PointTree
 from lidar3d.mapping.se3 import cross, pose_from_xyz_rpy, xyz_rpy_from_pose
 
 __all__ = [
@@ -186,7 +186,7 @@ class _LocalGeometryMap:
 
     def __init__(self, points: np.ndarray, *, k: int, max_sq_dist: float) -> None:
         self.points = np.asarray(points, dtype=np.float64)
-        self.tree = cKDTree(self.points)
+        self.tree = PointTree(self.points) if len(self.points) else None
         self.k = k
         self.max_dist = float(np.sqrt(max_sq_dist))
         n = len(self.points)
@@ -203,7 +203,7 @@ class _LocalGeometryMap:
     def nearest_fitted(self, query: np.ndarray, reach_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(query rows, target index) of queries whose nearest target point has valid geometry,
         looked for within ``reach_m`` (at least the fit radius)."""
-        if len(query) == 0 or len(self.points) < self.k:
+        if len(query) == 0 or len(self.points) < self.k or self.tree is None:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         bound = self.max_dist if reach_m is None else max(self.max_dist, reach_m)
         dist, idx = self.tree.query(query, k=1, distance_upper_bound=bound)
