@@ -48,6 +48,7 @@ def _row(method: str, process_wall_s: float, tree_mib: float, stage_ms: dict, co
         "process_wall_s": process_wall_s,
         "peak_rss_mib": tree_mib - 100.0,
         "peak_tree_rss_mib": tree_mib,
+        "cpu_s": process_wall_s * 1.5,
     }
 
 
@@ -68,9 +69,12 @@ def test_the_speed_table_puts_lidar3d_beside_kiss_icp():
     kiss = _row("kiss-icp", 20.0, 118.0, {"read": stats(3.0), "register": stats(15.0)})
     markdown = render_markdown([ours, kiss], HEADER)
     assert "## Speed against KISS-ICP" in markdown
-    assert "| loop | 690 | 30.0 | 20.0 | 1.50× | 14.0 | 1.5 | 6.0 | 12.0 | 0.1 (0.2) | 9.0 | 612 / 118 |" in markdown
+    assert (
+        "| loop | 690 | 30.0 | 20.0 | 1.50× | 45.0 / 30.0 | 14.0 | 1.5 | 6.0 | 12.0 | 0.1 (0.2) | 9.0 | 612 / 118 |"
+        in markdown
+    )
     alone = render_markdown([ours], HEADER)  # without the peer: its cells are dashes
-    assert "| loop | 690 | 30.0 | – | – | 14.0 |" in alone
+    assert "| loop | 690 | 30.0 | – | – | 45.0 / – | 14.0 |" in alone
 
 
 @pytest.mark.skipif(not Path("/proc/self/status").is_file(), reason="reads /proc")
