@@ -63,6 +63,41 @@ def _log(message: str) -> None:
 
 # --- running one method in its own process ------------------------------------------------------
 
+TREE_SAMPLE_S = 0.1
+
+
+def _children(pid: int) -> list[int]:
+    """The child processes of ``pid`` (from every thread's ``children`` list; empty when gone)."""
+    kids: list[int] = []
+    try:
+        for task in Path(f"/proc/{pid}/task").iterdir():
+            kids += [int(k) for k in (task / "children").read_text().split()]
+    except OSError:
+        pass
+    return kids
+
+
+def tree_rss_kib(pid: int) -> int:
+    """Resident set (``VmRSS``, KiB) of ``pid`` and all its descendants, summed (0 off Linux).
+
+    lidar3d reads the bag and runs the front end in a second process (``lidar3d.prefetch``), so a
+    run's memory is the sum over the tree; a process's own ``VmHWM`` or ``ru_maxrss`` misses the
+    child. Pages shared between the processes (the libraries both load) count once per process.
+    """
+    total = 0
+    todo = [pid]
+    while todo:
+        current = todo.pop()
+        try:
+            for line in Path(f"/proc/{current}/status").read_text().splitlines():
+                if line.startswith("VmRSS:"):
+                    total += int(line.split()[1])
+                    break
+        except (OSError, ValueError, IndexError):
+            continue
+        todo += _children(current)
+    return total
+
 
 def run_worker(
     method: str,
@@ -72,8 +107,12 @@ def run_worker(
     genz_deskew: bool,
     timeout_s: float | None,
     loop_closure: bool = True,
+    max_scans: int | None = None,
 ) -> dict:
-    """Run ``suite_worker.py`` for one method; returns its ``run.json`` plus exit status and peak RSS."""
+    """Run ``suite_worker.py`` for one method (on the first ``max_scans`` scans of the bag when
+    given); returns its ``run.json`` plus exit status, wall time of the whole process, its own peak
+    RSS and the peak RSS of its process tree (:func:`tree_rss_kib`, sampled every
+    ``TREE_SAMPLE_S``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     command = [
         sys.executable,
@@ -89,21 +128,25 @@ def run_worker(
         command.append("--genz-no-deskew")
     if method == "lidar3d" and not loop_closure:
         command.append("--no-loop")
+    if max_scans is not None:
+        command += ["--max-scans", str(max_scans)]
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     log_path = out_dir / "worker.log"
     t0 = time.perf_counter()
+    peak_tree_kib = 0
     with open(log_path, "wb") as log_file:
         process = subprocess.Popen(command, stdout=log_file, stderr=subprocess.STDOUT, cwd=REPO, env=env)
         deadline = None if timeout_s is None else t0 + timeout_s
         while True:
-            pid, status, usage = os.wait4(process.pid, os.WNOHANG if deadline else 0)
+            peak_tree_kib = max(peak_tree_kib, tree_rss_kib(process.pid))
+            pid, status, usage = os.wait4(process.pid, os.WNOHANG)
             if pid:
                 break
-            if time.perf_counter() > deadline:
+            if deadline is not None and time.perf_counter() > deadline:
                 process.kill()
                 pid, status, usage = os.wait4(process.pid, 0)
                 break
-            time.sleep(0.2)
+            time.sleep(TREE_SAMPLE_S)
     process.returncode = os.waitstatus_to_exitcode(status)
     elapsed = time.perf_counter() - t0
     record: dict = {
@@ -111,6 +154,7 @@ def run_worker(
         "process_wall_s": round(elapsed, 3),
         "peak_rss_mib": round(usage.ru_maxrss / 1024.0, 1),  # ru_maxrss is in KiB on Linux
         "cpu_s": round(usage.ru_utime + usage.ru_stime, 3),
+        "peak_tree_rss_mib": round(peak_tree_kib / 1024.0, 1),
         "log": str(log_path),
     }
     run_json = out_dir / "run.json"
@@ -247,6 +291,7 @@ def run_suite(args: argparse.Namespace) -> int:
             genz_deskew=not args.genz_no_deskew,
             timeout_s=args.timeout,
             loop_closure=not args.no_loop,
+            max_scans=args.max_scans,
         )
         if record["status"] == "ok":
             try:
@@ -294,6 +339,8 @@ def run_suite(args: argparse.Namespace) -> int:
         if args.duration is None
         else f"**only the first {args.duration:g} s of each scenario** (a shortened run, not the full suite)"
     )
+    if args.max_scans is not None:
+        durations_text += f"; **every method ran on the first {args.max_scans} scans of each bag only**"
     peer_versions = {METHOD_NAMES[p]: (peer_version(p) or "not installed") for p in PEERS}
     n_cpus = os.cpu_count() or 1
     header = {
@@ -360,6 +407,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         metavar="S",
         help="simulate only the first S seconds of each scenario (quick runs); default: full length",
+    )
+    parser.add_argument(
+        "--max-scans",
+        type=int,
+        default=None,
+        metavar="N",
+        help="run every method on the first N scans of each bag only (quick side-by-side timing)",
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], metavar="N", help="simulation seeds (default: 0)")
     parser.add_argument("--no-peers", action="store_true", help="run lidar3d only")
@@ -440,6 +494,8 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.jobs < 1:
         raise SystemExit("--jobs must be at least 1")
+    if args.max_scans is not None and args.max_scans < 1:
+        raise SystemExit("--max-scans must be at least 1")
     if args.duration is not None and args.duration <= 0:
         raise SystemExit("--duration must be positive")
     args.command_text = " ".join([".venv/bin/python eval/run_suite.py", *(shlex.quote(a) for a in argv)]).strip()

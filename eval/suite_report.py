@@ -285,6 +285,8 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
             )
     out.append("")
 
+    out += speed_target_lines(cases, grid, multi_seed)
+
     # --- per stage ----------------------------------------------------------------------------
     stage_names: list[str] = []
     for row in rows:
@@ -337,6 +339,79 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
         out.append("")
     out += notes_lines(header)
     return "\n".join(out).rstrip() + "\n"
+
+
+def process_wall_ratio(ours: dict | None, peer: dict | None) -> float | None:
+    """lidar3d's whole-process wall time / the peer's, on the same bag in the same suite run."""
+    if not (_ok(ours) and _ok(peer)):
+        return None
+    a, b = ours.get("process_wall_s"), peer.get("process_wall_s") if peer else None
+    return a / b if a and b else None
+
+
+def speed_target_lines(cases: Sequence, grid: dict, multi_seed: bool) -> list[str]:
+    """The table of issue 17's targets: lidar3d beside KISS-ICP on each bag, per-stage medians
+    (ms/scan) and the peak RSS of each run's whole process tree."""
+    rows = [(case, grid[case].get("lidar3d"), grid[case].get("kiss-icp")) for case in cases]
+    rows = [(case, ours, kiss) for case, ours, kiss in rows if _ok(ours)]
+    if not rows:
+        return []
+    out = [
+        "## Speed against KISS-ICP (targets: wall ratio <= 1, front end <= 5 ms, mapping <= 8 ms)",
+        "",
+        "Wall time of the whole process (start, imports, bag reading, every output written) on the same bag "
+        "in this suite run, and the CPU time of its process tree (user + system; KISS-ICP's threads and "
+        "lidar3d's two processes alike), which a busy machine disturbs less; "
+        "stage columns are lidar3d's medians in ms/scan (front end: its five stages "
+        "summed per scan, in the prefetch process); peak RSS is the sampled sum over the process tree "
+        "(lidar3d's prefetch process included).",
+        "",
+    ]
+    cols = [
+        "scenario",
+        "scans",
+        "lidar3d s",
+        "KISS-ICP s",
+        "lidar3d/KISS-ICP",
+        "CPU s lidar3d / KISS-ICP",
+        "front end",
+        "deskew",
+        "odometry",
+        "mapping",
+        "redeskew (p95)",
+        "map update",
+        "tree RSS MiB lidar3d / KISS-ICP",
+    ]
+    out += [_row(cols), _row(["---"] * len(cols))]
+    for _case, ours, kiss in rows:
+        ratio = process_wall_ratio(ours, kiss)
+        stages = _get(ours, "run", "stage_ms") or {}
+
+        def median(name: str, stats: dict = stages) -> str:
+            return _num(_get(stats, name, "median"), 1)
+
+        out.append(
+            _row(
+                [
+                    _case_label(ours, multi_seed),
+                    str(_get(ours, "run", "scans")),
+                    _num(ours.get("process_wall_s"), 1),
+                    _num(kiss.get("process_wall_s"), 1) if _ok(kiss) else DASH,
+                    f"{ratio:.2f}×" if ratio is not None else DASH,
+                    f"{_num(ours.get('cpu_s'), 1)} / " + (_num(kiss.get("cpu_s"), 1) if _ok(kiss) else DASH),
+                    median("front_end", _get(ours, "run", "composite_ms") or {}),
+                    median("deskew"),
+                    median("odometry"),
+                    median("mapping"),
+                    f"{median('redeskew')} ({_num(_get(stages, 'redeskew', 'p95'), 1)})",
+                    median("map_update"),
+                    f"{_num(ours.get('peak_tree_rss_mib'), 0)} / "
+                    + (_num(kiss.get("peak_tree_rss_mib"), 0) if _ok(kiss) else DASH),
+                ]
+            )
+        )
+    out.append("")
+    return out
 
 
 def _row(cells: Sequence[str]) -> str:

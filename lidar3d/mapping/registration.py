@@ -24,13 +24,14 @@ uses). Directions the rows leave unobserved are handled in one of two ways:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from lidar3d.mapping.se3 import cross, pose_from_xyz_rpy, xyz_rpy_from_pose
+from lidar3d.mapping.nearest import PointTree
+from lidar3d.mapping.se3 import cross, xyz_rpy_from_pose
 
 __all__ = [
     "ALL_AXES",
@@ -186,7 +187,7 @@ class _LocalGeometryMap:
 
     def __init__(self, points: np.ndarray, *, k: int, max_sq_dist: float) -> None:
         self.points = np.asarray(points, dtype=np.float64)
-        self.tree = cKDTree(self.points)
+        self.tree = PointTree(self.points) if len(self.points) else None
         self.k = k
         self.max_dist = float(np.sqrt(max_sq_dist))
         n = len(self.points)
@@ -203,7 +204,7 @@ class _LocalGeometryMap:
     def nearest_fitted(self, query: np.ndarray, reach_m: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """(query rows, target index) of queries whose nearest target point has valid geometry,
         looked for within ``reach_m`` (at least the fit radius)."""
-        if len(query) == 0 or len(self.points) < self.k:
+        if len(query) == 0 or len(self.points) < self.k or self.tree is None:
             return np.zeros(0, np.int64), np.zeros(0, np.int64)
         bound = self.max_dist if reach_m is None else max(self.max_dist, reach_m)
         dist, idx = self.tree.query(query, k=1, distance_upper_bound=bound)
@@ -276,18 +277,57 @@ class LineMap(_LocalGeometryMap):
         return line_rows_from_directions(rows, self._a[idx], self._b[idx])
 
 
-def _rotation_derivatives(x: np.ndarray) -> np.ndarray:
-    """dR/d(roll, pitch, yaw) for R = Rz(yaw) Ry(pitch) Rx(roll): (3, 3, 3)."""
-    cr, sr = np.cos(x[3]), np.sin(x[3])
-    cp, sp = np.cos(x[4]), np.sin(x[4])
-    cy, sy = np.cos(x[5]), np.sin(x[5])
-    Rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
-    Ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
-    Rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
-    dRx = np.array([[0, 0, 0], [0, -sr, -cr], [0, cr, -sr]])
-    dRy = np.array([[-sp, 0, cp], [0, 0, 0], [-cp, 0, -sp]])
-    dRz = np.array([[-sy, -cy, 0], [cy, -sy, 0], [0, 0, 0]])
-    return np.stack([Rz @ Ry @ dRx, Rz @ dRy @ Rx, dRz @ Ry @ Rx])
+def _rotation_and_derivatives(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """R = Rz(yaw) Ry(pitch) Rx(roll) of ``x`` (3, 3) and dR/d(roll, pitch, yaw) (3, 3, 3), written
+    out from one set of sines and cosines (scipy's ``Rotation`` and the products of the elementary
+    matrices cost several times more per call, and the solver needs both every iteration; they
+    agree to rounding)."""
+    cr, sr = math.cos(x[3]), math.sin(x[3])
+    cp, sp = math.cos(x[4]), math.sin(x[4])
+    cy, sy = math.cos(x[5]), math.sin(x[5])
+    out = np.array(
+        [
+            [
+                [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                [sy * cp, sy * sp * sr + cy * cr, sy * sp * cr - cy * sr],
+                [-sp, cp * sr, cp * cr],
+            ],
+            [
+                [0.0, sy * sr + cy * sp * cr, sy * cr - cy * sp * sr],
+                [0.0, sy * sp * cr - cy * sr, -cy * cr - sy * sp * sr],
+                [0.0, cp * cr, -cp * sr],
+            ],
+            [
+                [-cy * sp, cy * cp * sr, cy * cp * cr],
+                [-sy * sp, sy * cp * sr, sy * cp * cr],
+                [-cp, -sp * sr, -sp * cr],
+            ],
+            [
+                [-sy * cp, -sy * sp * sr - cy * cr, cy * sr - sy * sp * cr],
+                [cy * cp, cy * sp * sr - sy * cr, cy * sp * cr + sy * sr],
+                [0.0, 0.0, 0.0],
+            ],
+        ]
+    )
+    return out[0], out[1:]
+
+
+def _xyz_rpy(T: np.ndarray) -> np.ndarray:
+    """(6,) ``[x, y, z, roll, pitch, yaw]`` of a 4x4 transform, the inverse of the rotation above,
+    in closed form; within 1e-6 of gimbal lock (pitch +-90 deg) it leaves it to scipy."""
+    R = T[:3, :3]
+    if abs(R[2, 0]) > 1.0 - 1e-6:
+        return xyz_rpy_from_pose(T)
+    rpy = (math.atan2(R[2, 1], R[2, 2]), math.asin(-R[2, 0]), math.atan2(R[1, 0], R[0, 0]))
+    return np.array([T[0, 3], T[1, 3], T[2, 3], *rpy])
+
+
+def _pose(x: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """4x4 transform with rotation ``R`` and the translation ``x[:3]``."""
+    T = np.eye(4)
+    T[:3, :3] = R
+    T[:3, 3] = x[:3]
+    return T
 
 
 def observed_share(information: np.ndarray, prior_information: np.ndarray) -> np.ndarray:
@@ -356,9 +396,9 @@ def solve_pose(
     Returns a :class:`SolveResult`; when there are fewer than ``min_rows`` rows on the first
     iteration, the initial guess is returned with ``iterations == 0``.
     """
-    x = xyz_rpy_from_pose(T_init)
+    x = _xyz_rpy(T_init)
     free = np.asarray(free_axes, dtype=np.int64)
-    x_prior = None if prior is None else xyz_rpy_from_pose(prior.T_target_source)
+    x_prior = None if prior is None else _xyz_rpy(prior.T_target_source)
     prior_information = None if prior is None else prior.information[np.ix_(free, free)]
     projector = None
     degenerate = 0
@@ -370,7 +410,8 @@ def solve_pose(
     iteration = 0
     n_rows = 0
     while iteration < max_iterations:
-        T = pose_from_xyz_rpy(x)
+        R, dR = _rotation_and_derivatives(x)  # (3,3), (3,3,3)
+        T = _pose(x, R)
         q_all = None
         # Geman-McClure scale: it starts wide and halves each iteration down to robust_scale_m,
         # so a poor initial guess still finds rows while the final estimate ignores off-surface
@@ -400,7 +441,6 @@ def solve_pose(
             if iteration == 0:
                 return SolveResult(T_init.copy(), 0, False, n_rows, 0, min_eig)
             break
-        dR = _rotation_derivatives(x)  # (3,3,3)
         n = matches.normal[use]
         J = np.empty((n_rows, 6))
         J[:, :3] = n
@@ -449,4 +489,13 @@ def solve_pose(
             iteration += 1
             break
         iteration += 1
-    return SolveResult(pose_from_xyz_rpy(x), iteration, converged, n_rows, degenerate, min_eig, information, sigma_m)
+    return SolveResult(
+        _pose(x, _rotation_and_derivatives(x)[0]),
+        iteration,
+        converged,
+        n_rows,
+        degenerate,
+        min_eig,
+        information,
+        sigma_m,
+    )

@@ -15,8 +15,8 @@ Both searches are batched queries (see :class:`RingIndexedCloud` for the ring-re
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
 
+from lidar3d.mapping.nearest import PointTree
 from lidar3d.mapping.registration import MatchRows, line_rows_from_directions
 from lidar3d.mapping.se3 import cross
 
@@ -38,9 +38,9 @@ class RingIndexedCloud:
         self.points = np.asarray(points, dtype=np.float64)
         self.ring = np.asarray(ring, dtype=np.int64)
         self.n_rings = n_rings
-        self.tree = cKDTree(self.points) if len(self.points) else None
+        self.tree = PointTree(self.points) if len(self.points) else None
         self._ring_tree = (
-            cKDTree(np.column_stack([self.points, self.ring * self.RING_SPACING_M])) if len(self.points) else None
+            PointTree(np.column_stack([self.points, self.ring * self.RING_SPACING_M])) if len(self.points) else None
         )
 
     def __len__(self) -> int:
