@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VoxelMap", "voxel_downsample", "voxel_keys"]
+__all__ = ["VoxelMap", "group_by_voxel", "voxel_downsample", "voxel_keys"]
 
 _OFFSET = 1 << 20  # voxel indices are shifted into [0, 2^21) per axis before packing
 
@@ -42,6 +42,16 @@ def _group_sums(inverse: np.ndarray, values: np.ndarray, n_groups: int) -> np.nd
     )
 
 
+def group_by_voxel(points: np.ndarray, intensity: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(N,3) points and their (N,) intensities grouped by voxel: (V,) sorted unique keys
+    (:func:`voxel_keys`) and (V,5) per voxel the sums of x, y, z and intensity and the count."""
+    keys = voxel_keys(points, voxel_m)
+    uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    sums = _group_sums(inverse, points, uniq.size)
+    isum = np.bincount(inverse, weights=intensity, minlength=uniq.size)
+    return uniq, np.column_stack([sums, isum, counts])
+
+
 class VoxelMap:
     """Dense map accumulated scan by scan: per voxel, the mean position and intensity.
 
@@ -66,14 +76,7 @@ class VoxelMap:
         if len(points_world) == 0:
             return
         # Reduce each scan on its own first: a scan at 0.2 m shrinks about tenfold.
-        keys = voxel_keys(points_world, self.voxel_m)
-        uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-        sums = _group_sums(inverse, points_world, uniq.size)
-        isum = np.bincount(inverse, weights=intensity, minlength=uniq.size)
-        self._pending.append((uniq, np.column_stack([sums, isum, counts])))
-        self._pending_points += uniq.size
-        if self._pending_points >= self._merge_every:
-            self._merge()
+        self.insert_grouped(*group_by_voxel(points_world, intensity, self.voxel_m))
 
     def insert_grouped(self, keys: np.ndarray, sums: np.ndarray) -> None:
         """Add points already grouped by voxel of this map's size: (V,) unique ``keys`` and (V,5) per
@@ -85,21 +88,48 @@ class VoxelMap:
         if self._pending_points >= self._merge_every:
             self._merge()
 
+    def insert_weighted(self, points_world: np.ndarray, intensity: np.ndarray, weight: np.ndarray) -> None:
+        """Add (N,3) world-frame points that each stand for ``weight`` (N,) points (the voxel means of
+        another grid, ``weight`` their counts), with their (N,) mean intensities."""
+        if len(points_world) == 0:
+            return
+        keys = voxel_keys(points_world, self.voxel_m)
+        uniq, inverse = np.unique(keys, return_inverse=True)
+        weighted = np.column_stack([points_world * weight[:, None], intensity * weight, weight])
+        self._pending.append((uniq, _group_sums(inverse, weighted, uniq.size)))
+        self._pending_points += uniq.size
+        if self._pending_points >= self._merge_every:
+            self._merge()
+
     def _merge(self) -> None:
+        """Add the pending voxels into the map.
+
+        Only the map's voxels that the pending ones touch are summed again with them (the map's sum
+        first, then the pending in insertion order: the sums of merging everything at once); new
+        voxels are inserted in key order. Memory: the map once more at most, not the map's
+        concatenation with the pending sorted and summed again.
+        """
         if not self._pending:
             return
-        keys = np.concatenate([self._keys] + [k for k, _ in self._pending])
-        data = np.concatenate(
-            [np.column_stack([self._sum_xyz, self._sum_intensity, self._count])] + [d for _, d in self._pending]
-        )
-        uniq, inverse = np.unique(keys, return_inverse=True)
-        merged = _group_sums(inverse, data, uniq.size)
-        self._keys = uniq
-        self._sum_xyz = merged[:, :3]
-        self._sum_intensity = merged[:, 3]
-        self._count = merged[:, 4].astype(np.int64)
+        new_keys = np.concatenate([k for k, _ in self._pending])
+        new_data = np.concatenate([d for _, d in self._pending])
         self._pending = []
         self._pending_points = 0
+        at = np.minimum(np.searchsorted(self._keys, new_keys), max(self._keys.size - 1, 0))
+        touched = np.unique(at[self._keys[at] == new_keys]) if self._keys.size else np.zeros(0, np.int64)
+        old = np.column_stack([self._sum_xyz[touched], self._sum_intensity[touched], self._count[touched]])
+        uniq, inverse = np.unique(np.concatenate([self._keys[touched], new_keys]), return_inverse=True)
+        merged = _group_sums(inverse, np.concatenate([old, new_data]), uniq.size)
+        rows = np.searchsorted(self._keys, uniq)
+        known = np.isin(uniq, self._keys[touched], assume_unique=True)
+        self._sum_xyz[rows[known]] = merged[known, :3]
+        self._sum_intensity[rows[known]] = merged[known, 3]
+        self._count[rows[known]] = merged[known, 4].astype(np.int64)
+        fresh = ~known
+        self._keys = np.insert(self._keys, rows[fresh], uniq[fresh])
+        self._sum_xyz = np.insert(self._sum_xyz, rows[fresh], merged[fresh, :3], axis=0)
+        self._sum_intensity = np.insert(self._sum_intensity, rows[fresh], merged[fresh, 3])
+        self._count = np.insert(self._count, rows[fresh], merged[fresh, 4].astype(np.int64))
 
     def __len__(self) -> int:
         self._merge()
