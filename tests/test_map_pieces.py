@@ -6,7 +6,6 @@ import pytest
 from scipy.spatial import cKDTree
 
 from lidar3d.config import Config
-from lidar3d.errors import OutputError
 from lidar3d.io.piece_spill import SpilledPieceStore
 from lidar3d.loop.closer import correct_scan_poses
 from lidar3d.mapping.dense_map import DenseMap
@@ -158,6 +157,53 @@ def test_spilled_pieces_read_back_as_put(tmp_path):
                     assert getattr(back, field).dtype == getattr(piece, field).dtype
 
 
-def test_a_spill_folder_that_cannot_hold_the_file_is_a_clear_error(tmp_path):
-    with pytest.raises(OutputError, match="cannot create the map's spill file"):
-        SpilledPieceStore(tmp_path / "missing")
+def _pieces(n_pieces: int) -> list[MapPiece]:
+    rng = np.random.default_rng(n_pieces)
+    return [
+        MapPiece(
+            k,
+            rng.normal(size=(50, 3)).astype(np.float32),
+            rng.random(50).astype(np.float32),
+            np.ones(50, np.int32),
+            np.zeros(50, bool),
+        )
+        for k in range(n_pieces)
+    ]
+
+
+def _assert_same(back, pieces):
+    assert len(back) == len(pieces)
+    for b, p in zip(back, pieces, strict=True):
+        assert b.keyframe == p.keyframe
+        np.testing.assert_array_equal(b.points_keyframe, p.points_keyframe)
+
+
+def test_a_spill_folder_that_cannot_hold_the_file_keeps_the_pieces_in_memory(tmp_path, caplog):
+    pieces = _pieces(3)
+    with SpilledPieceStore(tmp_path / "missing") as store:
+        for piece in pieces:
+            store.put(piece)
+        _assert_same(list(store.pieces()), pieces)
+    assert "keeping them in memory" in caplog.text
+
+
+def test_a_spill_file_that_fails_midway_keeps_what_it_holds_and_the_rest_in_memory(tmp_path, caplog, monkeypatch):
+    pieces = _pieces(4)
+    with SpilledPieceStore(tmp_path) as store:
+        store.put(pieces[0])
+        store.put(pieces[1])
+        real_save = np.save
+        calls = []
+
+        def full_disk(file, array, **kwargs):
+            calls.append(1)
+            if len(calls) == 3:  # halfway through the third piece
+                raise OSError(28, "No space left on device")
+            real_save(file, array, **kwargs)
+
+        monkeypatch.setattr(np, "save", full_disk)
+        store.put(pieces[2])
+        store.put(pieces[3])
+        monkeypatch.setattr(np, "save", real_save)
+        _assert_same(list(store.pieces()), pieces)
+    assert "No space left on device" in caplog.text
