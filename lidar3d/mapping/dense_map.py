@@ -94,7 +94,9 @@ class DenseMap:
         if self._pieces is None:
             raise ValueError("the dense map is not kept in pieces")
         self._pieces.close()
-        self.static, self.dynamic = place_pieces(self._pieces.store.pieces(), keyframe_poses, self.static.voxel_m)
+        voxel_m = self.static.voxel_m
+        self.static, self.dynamic = VoxelMap(voxel_m), VoxelMap(voxel_m)  # the maps as placed go first
+        self.static, self.dynamic = place_pieces(self._pieces.store.pieces(), keyframe_poses, voxel_m)
         if self._filter is not None:
             self._vote()
 
