@@ -207,3 +207,21 @@ def test_a_spill_file_that_fails_midway_keeps_what_it_holds_and_the_rest_in_memo
         monkeypatch.setattr(np, "save", real_save)
         _assert_same(list(store.pieces()), pieces)
     assert "No space left on device" in caplog.text
+
+
+class _UnreadableStore(MemoryPieceStore):
+    def pieces(self):
+        raise OSError(5, "Input/output error")
+
+
+def test_pieces_that_cannot_be_read_back_leave_the_map_as_placed(city, caplog):
+    scans, poses = city
+    config = Config()
+    dense_map = DenseMap(config, MapPieces(config.mapping.map_voxel_m, _UnreadableStore()))
+    for scan, T in zip(scans[:5], poses[:5]):
+        dense_map.add(scan, T, np.zeros(6), MapAnchor(0, poses[0]))
+    dense_map.finish()
+    as_placed = dense_map.static.voxel_counts()
+    dense_map.place_again(poses[:1] @ _corrections(2)[1])
+    np.testing.assert_array_equal(dense_map.static.voxel_counts()[0], as_placed[0])
+    assert "cannot be read back" in caplog.text

@@ -5,6 +5,7 @@ when loop closures move the keyframes."""
 
 from __future__ import annotations
 
+import logging
 from collections import deque
 from collections.abc import Iterable
 
@@ -19,6 +20,8 @@ from lidar3d.mapping.voxel import VoxelMap, group_by_voxel
 from lidar3d.records import Scan, Trajectory
 
 __all__ = ["DenseMap", "build_dense_map"]
+
+log = logging.getLogger(__name__)
 
 
 class DenseMap:
@@ -94,9 +97,14 @@ class DenseMap:
         if self._pieces is None:
             raise ValueError("the dense map is not kept in pieces")
         self._pieces.close()
-        voxel_m = self.static.voxel_m
-        self.static, self.dynamic = VoxelMap(voxel_m), VoxelMap(voxel_m)  # the maps as placed go first
-        self.static, self.dynamic = place_pieces(self._pieces.store.pieces(), keyframe_poses, voxel_m)
+        try:
+            placed = place_pieces(self._pieces.store.pieces(), keyframe_poses, self.static.voxel_m)
+        except OSError as err:  # a spill file that cannot be read back: the map stays as placed
+            log.warning(
+                "the dense map's pieces cannot be read back (%s); map.pcd keeps the poses before the loop closures", err
+            )
+            return
+        self.static, self.dynamic = placed
         if self._filter is not None:
             self._vote()
 
