@@ -52,6 +52,14 @@ def group_by_voxel(points: np.ndarray, intensity: np.ndarray, voxel_m: float) ->
     return uniq, np.column_stack([sums, isum, counts])
 
 
+def _interleaved(old: np.ndarray, at_old: np.ndarray, new: np.ndarray, at_new: np.ndarray) -> np.ndarray:
+    """The rows of ``old`` and ``new`` in one array, at rows ``at_old`` and ``at_new`` of it."""
+    out = np.empty((len(old) + len(new), *old.shape[1:]), old.dtype)
+    out[at_old] = old
+    out[at_new] = new
+    return out
+
+
 class VoxelMap:
     """Dense map accumulated scan by scan: per voxel, the mean position and intensity.
 
@@ -126,10 +134,16 @@ class VoxelMap:
         self._sum_intensity[rows[known]] = merged[known, 3]
         self._count[rows[known]] = merged[known, 4].astype(np.int64)
         fresh = ~known
-        self._keys = np.insert(self._keys, rows[fresh], uniq[fresh])
-        self._sum_xyz = np.insert(self._sum_xyz, rows[fresh], merged[fresh, :3], axis=0)
-        self._sum_intensity = np.insert(self._sum_intensity, rows[fresh], merged[fresh, 3])
-        self._count = np.insert(self._count, rows[fresh], merged[fresh, 4].astype(np.int64))
+        if not fresh.any():
+            return
+        # Interleave the new voxels into the key order: where every old and every new row goes.
+        fresh_keys = uniq[fresh]
+        at_new = rows[fresh] + np.arange(fresh_keys.size)
+        at_old = np.arange(self._keys.size) + np.searchsorted(fresh_keys, self._keys)
+        self._keys = _interleaved(self._keys, at_old, fresh_keys, at_new)
+        self._sum_xyz = _interleaved(self._sum_xyz, at_old, merged[fresh, :3], at_new)
+        self._sum_intensity = _interleaved(self._sum_intensity, at_old, merged[fresh, 3], at_new)
+        self._count = _interleaved(self._count, at_old, merged[fresh, 4].astype(np.int64), at_new)
 
     def __len__(self) -> int:
         self._merge()
