@@ -4,9 +4,12 @@ The bags are made from the simulator's `loop` scenario driven several times roun
 the scans from the start to the scan whose pose comes back nearest to the first one (a few
 centimetres away), and laps are repeated with their stamps carried on. Each run is a separate
 `lidar3d run` process; the peak is the largest sum of the resident set sizes of that process and
-its children (the prefetch process), sampled every 0.2 s. Usage:
+its children (the prefetch process), sampled every 0.2 s; the peaks of the main process and of its
+children alone are given beside it. ``--bag`` measures given bags instead (e.g. the evaluation
+cache's drives, ``--max-scans`` to cut them). Usage:
 
     .venv/bin/python eval/bench_memory.py [--scans 1000 3000] [--keep DIR]
+    .venv/bin/python eval/bench_memory.py --bag eval/cache/figure_eight_s0_full/scans.bag --max-scans 1400
 """
 
 from __future__ import annotations
@@ -26,9 +29,9 @@ from lidar3d.sim import Simulation
 from lidar3d.summary import read_summary
 
 
-def _tree_rss_kib(pid: int) -> int:
-    """Resident set size of ``pid`` and all its descendants, in KiB."""
-    total = 0
+def _tree_rss_kib(pid: int) -> tuple[int, int]:
+    """Resident set size of ``pid`` and all its descendants, and of ``pid`` alone, in KiB."""
+    total = own = 0
     pending = [pid]
     while pending:
         p = pending.pop()
@@ -40,8 +43,9 @@ def _tree_rss_kib(pid: int) -> int:
         for line in status.splitlines():
             if line.startswith("VmRSS:"):
                 total += int(line.split()[1])
+                own = int(line.split()[1]) if p == pid else own
         pending.extend(int(c) for c in children)
-    return total
+    return total, own
 
 
 def make_bag(path: Path, n_scans: int) -> None:
@@ -59,23 +63,30 @@ def make_bag(path: Path, n_scans: int) -> None:
     write_scan_bag(path, scans(), storage="ros1")
 
 
-def measure(bag: Path, out: Path) -> dict:
+def measure(bag: Path, out: Path, extra: list[str] | None = None) -> dict:
+    """Run ``lidar3d run`` on ``bag`` (with ``extra`` arguments) and sample its memory."""
     command = [sys.executable, "-m", "lidar3d.cli.main", "-q", "run", str(bag), "--out", str(out), "--overwrite"]
+    command += extra or []
     t0 = time.perf_counter()
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    peak = 0
+    peak = peak_main = peak_children = 0
     while process.poll() is None:
-        peak = max(peak, _tree_rss_kib(process.pid))
+        total, own = _tree_rss_kib(process.pid)
+        peak, peak_main, peak_children = max(peak, total), max(peak_main, own), max(peak_children, total - own)
         time.sleep(0.2)
     wall = time.perf_counter() - t0
     if process.returncode != 0:
-        raise SystemExit(f"lidar3d run failed: {process.stderr.read()}")
+        raise SystemExit(f"lidar3d run failed: {process.communicate()[1]}")
     summary = read_summary(out / "summary.json")
     return {
         "scans": summary.scans,
         "peak_rss_mib": round(peak / 1024, 1),
+        "main_mib": round(peak_main / 1024, 1),
+        "children_mib": round(peak_children / 1024, 1),
         "wall_s": round(wall, 1),
         "keyframes": summary.keyframes,
+        "loop_closures": summary.loop_closures,
+        "map_rebuild_s": summary.map_rebuild_s,
         "map_points": summary.map_points,
     }
 
@@ -83,21 +94,34 @@ def measure(bag: Path, out: Path) -> dict:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scans", type=int, nargs="+", default=[1000, 3000])
+    parser.add_argument("--bag", type=Path, nargs="+", help="measure these bags instead of the repeated loop")
+    parser.add_argument("--max-scans", type=int, help="with --bag: stop after this many scans")
     parser.add_argument("--keep", type=Path, help="keep bags and outputs here (default: a temporary folder)")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         rows = []
-        for n in args.scans:
+        if args.bag:
+            extra = ["--max-scans", str(args.max_scans)] if args.max_scans else []
+            for i, bag in enumerate(args.bag):
+                rows.append({"bag": str(bag), **measure(bag, root / f"run_bag{i}", extra)})
+                print(f"{bag}: {rows[-1]}", file=sys.stderr)
+        for n in [] if args.bag else args.scans:
             bag = root / f"loop_x{n}.bag"
             make_bag(bag, n)
-            rows.append(measure(bag, root / f"run_{n}"))
+            rows.append({"bag": f"loop x{n}", **measure(bag, root / f"run_{n}")})
             bag.unlink()
             print(f"{n} scans: {rows[-1]}", file=sys.stderr)
-    print("| scans | peak RSS (MiB) | keyframes | map points | wall (s) |")
-    print("|---:|---:|---:|---:|---:|")
+    print(
+        "| bag | scans | peak RSS, process tree (MiB) | main (MiB) | prefetch (MiB) | keyframes | loop closures "
+        "| map placed again (s) | map points | wall (s) |"
+    )
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
-        print(f"| {r['scans']} | {r['peak_rss_mib']} | {r['keyframes']} | {r['map_points']} | {r['wall_s']} |")
+        print(
+            f"| {r['bag']} | {r['scans']} | {r['peak_rss_mib']} | {r['main_mib']} | {r['children_mib']} "
+            f"| {r['keyframes']} | {r['loop_closures']} | {r['map_rebuild_s']} | {r['map_points']} | {r['wall_s']} |"
+        )
     if len(rows) >= 2:
         print(
             f"\nratio {rows[-1]['scans']} / {rows[0]['scans']} scans: "

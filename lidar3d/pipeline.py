@@ -9,8 +9,9 @@ Parts, each owning its state and answering with a record:
 * :class:`~lidar3d.loop.closer.LoopCloser` -> :class:`~lidar3d.loop.closer.LoopUpdate`, which this
   module applies to the scan poses, the submap, the keyframe spacing and the tracker;
 * the :class:`~lidar3d.mapping.dense_map.DenseMap`, which a settled sweep enters, its moving objects
-  taken out into a map of their own (:meth:`SlamPipeline.rebuild_map` places every scan again
-  after loop closures);
+  taken out into a map of their own; with loop closure it also keeps the sweeps in pieces anchored
+  to keyframes (:mod:`lidar3d.mapping.map_pieces`), and :meth:`SlamPipeline.finish` places the map
+  again from them when loop closures moved the keyframes;
 * :class:`~lidar3d.mapping.health.HealthMonitor`: the health of every scan (ok / degraded / lost)
   from what the tracker concluded;
 * :class:`~lidar3d.run_statistics.RunStatistics`: timings, counters, warnings.
@@ -34,9 +35,10 @@ from lidar3d.features.frontend import STAGES as FRONT_END_STAGES
 from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.records import LoopCandidate
-from lidar3d.mapping.dense_map import DenseMap, build_dense_map
+from lidar3d.mapping.dense_map import DenseMap
 from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
+from lidar3d.mapping.map_pieces import MapPieces, PieceStore
 from lidar3d.mapping.step_uncertainty import StepUncertainty
 from lidar3d.mapping.sweep import SweepFeatures
 from lidar3d.mapping.tracker import SettledSweep, Tracker
@@ -100,6 +102,8 @@ class SlamResult:
         loop_ms_total: milliseconds spent in loop detection and the pose graph.
         loop_candidates: every verified loop candidate, accepted or rejected, with its reason.
         pose_graph_g2o: the keyframe pose graph in g2o text ("" without loop closure).
+        map_rebuild_s: seconds spent placing the map again after loop closures (None: not placed
+            again).
     """
 
     trajectory: Trajectory
@@ -121,12 +125,14 @@ class SlamResult:
     loop_ms_total: float = 0.0
     loop_candidates: tuple[LoopCandidate, ...] = field(default=())
     pose_graph_g2o: str = ""
+    map_rebuild_s: float | None = None
 
 
 class SlamPipeline:
-    """Call :meth:`process` per scan, :meth:`finish` at the end of the input, then :meth:`result`."""
+    """Call :meth:`process` per scan, :meth:`finish` at the end of the input, then :meth:`result`.
+    ``piece_store``: where the map's pieces wait when loop closure is on (default: in memory)."""
 
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, piece_store: PieceStore | None = None) -> None:
         self.config = config
         mp = config.mapping
         self.submap = Submap(
@@ -148,7 +154,7 @@ class SlamPipeline:
         self.health = HealthMonitor(config.health)
         self._step_uncertainty = StepUncertainty(config.motion)
         self.stats = RunStatistics()
-        self._map = DenseMap(config)
+        self._map = DenseMap(config, MapPieces(mp.map_voxel_m, piece_store) if self.loop is not None else None)
         self._estimates: list[ScanEstimate] = []
         self._n_seen = 0
 
@@ -216,17 +222,17 @@ class SlamPipeline:
 
     def finish(self) -> None:
         """End of input: the last sweep enters the map (and the keyframes), an open motion-model
-        stretch is reported. Calling it again changes nothing."""
+        stretch is reported; after loop closures the map is placed again from its pieces, each with
+        its keyframe's corrected pose. Calling it again changes nothing."""
         self.stats.end_of_input(self._n_seen)
         settled = self.tracker.finish()
         if settled is not None:
             self._settle(settled, next_is_keyframe=False)
         self._map.finish()
-
-    def rebuild_map(self, scans: Iterable[Scan]) -> None:
-        """Place ``scans`` again with the current poses (after loop closures moved them); scans
-        whose stamp the trajectory lacks are skipped."""
-        self._map = build_dense_map(scans, self._trajectory(), self.config)
+        if self.stats.counts.get("loop_closures") and self.stats.map_rebuild_s is None:
+            t0 = time.perf_counter()
+            self._map.place_again(self.submap.poses)
+            self.stats.map_rebuild_s = round(time.perf_counter() - t0, 3)
 
     def result(self, partial: bool = False) -> SlamResult:
         """A snapshot of the result so far; changes nothing (``partial`` marks an unfinished run).
@@ -263,6 +269,7 @@ class SlamPipeline:
             partial=partial,
             loop_candidates=tuple(self.loop.candidates) if self.loop else (),
             pose_graph_g2o=self.loop.graph.g2o_text(self.submap.poses) if self.loop and len(self.submap) else "",
+            map_rebuild_s=self.stats.map_rebuild_s,
             health=health,
             health_summary=health_summary,
         )
@@ -287,7 +294,9 @@ class SlamPipeline:
                 self.submap.replace_clouds(len(self.submap) - 1, *deskewed.keyframe_clouds(self.config.mapping))
             else:
                 update = self._add_keyframe(latest.scan_index, latest.stamp_ns, settled.T_world_lidar, deskewed)
-        self._map.add(settled.scan, settled.T_world_lidar, settled.twist)
+        # A loop closed at this sweep's own keyframe moved the sweep with it (and the anchor).
+        T_map = self._estimates[-1].T_world_lidar if update is not None else settled.T_world_lidar
+        self._map.add(settled.scan, T_map, settled.twist, self.submap.anchor())
         return update
 
     def _add_keyframe(

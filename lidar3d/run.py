@@ -43,6 +43,7 @@ from lidar3d.io.atomic import write_text_atomic
 from lidar3d.io.health_csv import write_health_csv
 from lidar3d.io.packet_source import input_config
 from lidar3d.io.pcd import write_pcd
+from lidar3d.io.piece_spill import SpilledPieceStore
 from lidar3d.io.run_folder import existing_run_outputs, publish_set
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import write_kitti, write_tum
@@ -79,7 +80,6 @@ def _summary(
     runtime_s: float,
     read_ms: list[float],
     input_stats: InputStatistics | None = None,
-    map_rebuild_s: float | None = None,
 ) -> RunSummary:
     n = len(result.trajectory)
     stamps_ns = result.trajectory.stamps_ns
@@ -107,7 +107,7 @@ def _summary(
         pose_stamp="header stamp of each scan, whatever instant it marks (sweep start for raw packets)",
         health=result.health_summary,
         input_stats=input_stats,
-        map_rebuild_s=map_rebuild_s,
+        map_rebuild_s=result.map_rebuild_s,
     )
 
 
@@ -266,14 +266,15 @@ def run_bag(
     _check_output_folder(out, overwrite)
     config = input_config(paths, config)  # raw packets: the sensor model and rate they show
 
-    pipeline = SlamPipeline(config)
+    # With loop closure the map is also kept in pieces (to move with the keyframes), spilled to disk.
+    piece_store = SpilledPieceStore() if config.loop.enabled else None
+    pipeline = SlamPipeline(config, piece_store)
     publisher = _RunPublisher(out, config)
     read_ms: list[float] = []
     t_start = time.perf_counter()
     last_checkpoint = last_map_checkpoint = t_start
     topic = ""
     input_stats: InputStatistics | None = None
-    map_rebuild_s: float | None = None
     finished = False
     try:
         with open_prepared_scans(paths, config, start=start, max_scans=max_scans, prefetch=prefetch) as stream:
@@ -313,13 +314,7 @@ def run_bag(
             log.warning("%s: %s", ", ".join(inputs), warning)
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
-        pipeline.finish()
-        if pipeline.stats.counts.get("loop_closures"):
-            # Loop closures moved poses after their scans entered the map: place every scan again.
-            t0 = time.perf_counter()
-            with open_scan_source(paths, config) as source:
-                pipeline.rebuild_map(itertools.islice(source, start, start + done))
-            map_rebuild_s = round(time.perf_counter() - t0, 3)
+        pipeline.finish()  # after loop closures, the map is placed again with the corrected keyframes
         finished = True
     finally:
         if not finished:
@@ -334,11 +329,12 @@ def run_bag(
                 runtime_s=runtime,
                 read_ms=read_ms,
                 input_stats=input_stats,
-                map_rebuild_s=map_rebuild_s,
             )
             summary = publisher.publish(result, summary)
             if not finished:
                 log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
+        if piece_store is not None:
+            piece_store.close()
 
     if span_log is not None:
         span = _SpanInputs.read(span_log, T_imu_lidar, config)
@@ -353,7 +349,6 @@ def run_bag(
                 runtime_s=time.perf_counter() - t_start,
                 read_ms=read_ms,
                 input_stats=input_stats,
-                map_rebuild_s=map_rebuild_s,
             )
             if fusion.rejected_consistency:
                 line = (

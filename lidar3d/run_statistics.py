@@ -26,12 +26,14 @@ class RunStatistics:
     Attributes:
         counts: counter name -> value.
         loop_ms: milliseconds spent in loop detection and the pose graph.
+        map_rebuild_s: seconds spent placing the map again after loop closures (None: not placed again).
     """
 
     def __init__(self) -> None:
         self._timings: dict[str, list[float]] = defaultdict(list)
         self.counts: dict[str, int] = defaultdict(int)
         self.loop_ms = 0.0
+        self.map_rebuild_s: float | None = None
         self._warnings: list[str] = []
         self._fallback_start: int | None = None
 

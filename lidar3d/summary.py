@@ -524,8 +524,8 @@ class RunSummary:
         health: the per-scan health flags counted, with the lost stretches (None: a summary from
             before the health signal).
         input_stats: what reading the input dropped and kept (None until the input was read to its end).
-        map_rebuild_s: time to rebuild the dense map after loop closures, seconds, rounded to 1 ms
-            (None: no rebuild).
+        map_rebuild_s: time to place the dense map again from its keyframe pieces after loop
+            closures, seconds, rounded to 1 ms (None: no loop closed).
         dynamic_points: points of ``dynamic.pcd``, the points the dynamic-object removal took out of
             ``map.pcd`` (None: removal off, ``lidar3d run --keep-dynamic``, or a summary from before it).
         evaluation: the evaluation against a SPAN log (None: not evaluated).

@@ -1,8 +1,12 @@
 """The dense point-cloud map: every sweep deskewed and placed with its final pose, moving objects
-taken out (:mod:`lidar3d.mapping.free_space`) into a map of their own."""
+taken out (:mod:`lidar3d.mapping.free_space`) into a map of their own, and (with loop closure) kept
+in pieces anchored to keyframes (:mod:`lidar3d.mapping.map_pieces`) so that it can be placed again
+when loop closures move the keyframes."""
 
 from __future__ import annotations
 
+import logging
+from collections import deque
 from collections.abc import Iterable
 
 import numpy as np
@@ -10,11 +14,14 @@ import numpy as np
 from lidar3d.config import Config
 from lidar3d.mapping.deskew import deskew_scan, twist_between
 from lidar3d.mapping.free_space import DynamicFilter, FilteredSweep, PlacedSweep, outvoted_voxels
+from lidar3d.mapping.map_pieces import MapAnchor, MapPieces, place_pieces
 from lidar3d.mapping.se3 import transform_points
-from lidar3d.mapping.voxel import VoxelMap
+from lidar3d.mapping.voxel import VoxelMap, group_by_voxel
 from lidar3d.records import Scan, Trajectory
 
 __all__ = ["DenseMap", "build_dense_map"]
+
+log = logging.getLogger(__name__)
 
 
 class DenseMap:
@@ -24,9 +31,15 @@ class DenseMap:
     With ``dynamic.enabled`` a sweep is decided a window of sweeps after it was added (see
     :class:`~lidar3d.mapping.free_space.DynamicFilter`): until :meth:`finish`, the latest sweeps are
     in neither map. Without it every sweep enters the static map at once.
+
+    Args:
+        config: the run's configuration.
+        pieces: also collect every sweep into these pieces (by the anchor given to :meth:`add`), so
+            that :meth:`place_again` can move the map with its keyframes; None: the map is final as
+            placed.
     """
 
-    def __init__(self, config: Config) -> None:
+    def __init__(self, config: Config, pieces: MapPieces | None = None) -> None:
         self.config = config
         self.static = VoxelMap(config.mapping.map_voxel_m)
         self.dynamic = VoxelMap(config.mapping.map_voxel_m)
@@ -34,49 +47,86 @@ class DenseMap:
         self._filter = (
             DynamicFilter(config.dynamic, model.elevation_deg, model.n_columns) if config.dynamic.enabled else None
         )
+        self._pieces = pieces
+        self._anchors: deque[MapAnchor | None] = deque()  # of the sweeps waiting in the filter, oldest first
 
     @property
     def removes_dynamic(self) -> bool:
         """Whether moving objects are taken out of the static map."""
         return self._filter is not None
 
-    def add(self, scan: Scan, T_world_lidar: np.ndarray, twist: np.ndarray) -> None:
+    def add(self, scan: Scan, T_world_lidar: np.ndarray, twist: np.ndarray, anchor: MapAnchor | None = None) -> None:
         """Deskew ``scan`` with the body ``twist``, keep points within the sensor's range, and add
-        them at ``T_world_lidar``."""
+        them at ``T_world_lidar``; ``anchor``: the keyframe the sweep follows (needed with pieces)."""
+        if self._pieces is not None and anchor is None:
+            raise ValueError("a dense map kept in pieces needs the anchor of every sweep")
         final = deskew_scan(scan, twist)
         r = np.linalg.norm(final.points, axis=1)
         keep = (r >= self.config.sensor.min_range_m) & (r <= self.config.sensor.resolved_model.max_range_m)
         points_world = transform_points(T_world_lidar, final.points[keep])
         if self._filter is None:
-            self.static.insert(points_world, final.intensity[keep])
+            keys, sums = group_by_voxel(points_world, final.intensity[keep], self.static.voxel_m)
+            self.static.insert_grouped(keys, sums)
+            if self._pieces is not None and anchor is not None:
+                self._pieces.add(anchor, keys, sums, np.zeros(len(keys), bool))
             return
         sweep = PlacedSweep(final.points[keep], points_world, final.ring[keep], final.intensity[keep], T_world_lidar)
+        self._anchors.append(anchor)
         for decided in self._filter.add(sweep):
-            self._insert(decided)
+            self._insert(decided, self._anchors.popleft())
 
     def finish(self) -> None:
         """End of input: the sweeps still waiting for their window are decided and enter the maps;
         then every map voxel holding more points judged dynamic than static
         (``dynamic.vote_ratio`` times) moves to the dynamic map whole: a voxel a moving object
         crossed in several sweeps is often missed in one of them."""
-        if self._filter is None:
+        if self._filter is not None:
+            for decided in self._filter.flush():
+                self._insert(decided, self._anchors.popleft())
+            self._vote()
+        if self._pieces is not None:
+            self._pieces.close()
+
+    def place_again(self, keyframe_poses: np.ndarray) -> None:
+        """After :meth:`finish`: place the map again from its pieces, each moved with its keyframe's
+        pose in ``keyframe_poses`` (K,4,4) (after loop closures moved them), and vote the voxels again.
+
+        Raises:
+            ValueError: the map is not kept in pieces.
+        """
+        if self._pieces is None:
+            raise ValueError("the dense map is not kept in pieces")
+        self._pieces.close()
+        try:
+            placed = place_pieces(self._pieces.store.pieces(), keyframe_poses, self.static.voxel_m)
+        except OSError as err:  # a spill file that cannot be read back: the map stays as placed
+            log.warning(
+                "the dense map's pieces cannot be read back (%s); map.pcd keeps the poses before the loop closures", err
+            )
             return
-        for decided in self._filter.flush():
-            self._insert(decided)
+        self.static, self.dynamic = placed
+        if self._filter is not None:
+            self._vote()
+
+    def _vote(self) -> None:
         outvoted = outvoted_voxels(
             *self.static.voxel_counts(), *self.dynamic.voxel_counts(), self.config.dynamic.vote_ratio
         )
         self.static.move_voxels(outvoted, self.dynamic)
 
-    def _insert(self, sweep: FilteredSweep) -> None:
+    def _insert(self, sweep: FilteredSweep, anchor: MapAnchor | None) -> None:
         if self.config.dynamic.voxel_m == self.static.voxel_m:  # the sweep comes grouped as the maps take it
             static = ~sweep.voxel_dynamic
             self.static.insert_grouped(sweep.voxel_keys[static], sweep.voxel_sums[static])
             self.dynamic.insert_grouped(sweep.voxel_keys[~static], sweep.voxel_sums[~static])
+            if self._pieces is not None and anchor is not None:
+                self._pieces.add(anchor, sweep.voxel_keys, sweep.voxel_sums, sweep.voxel_dynamic)
             return
         static = ~sweep.dynamic
         self.static.insert(sweep.points_world[static], sweep.intensity[static])
         self.dynamic.insert(sweep.points_world[sweep.dynamic], sweep.intensity[sweep.dynamic])
+        if self._pieces is not None and anchor is not None:
+            self._pieces.add_points(anchor, sweep.points_world, sweep.intensity, sweep.dynamic)
 
 
 def build_dense_map(scans: Iterable[Scan], trajectory: Trajectory, config: Config) -> DenseMap:

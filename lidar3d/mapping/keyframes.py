@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidar3d.mapping.map_pieces import MapAnchor
 from lidar3d.mapping.registration import LineMap, PlaneMap
 from lidar3d.mapping.se3 import invert, transform_points
 from lidar3d.mapping.voxel import voxel_downsample
@@ -127,6 +128,12 @@ class Submap:
     def poses(self) -> np.ndarray:
         """(K,4,4) current keyframe poses."""
         return np.array(self._poses) if self._poses else np.zeros((0, 4, 4))
+
+    def anchor(self) -> MapAnchor:
+        """The keyframe a sweep placed now follows in the dense map: the latest one, at its current pose."""
+        if not self.keyframes:
+            return MapAnchor(None, np.eye(4))
+        return MapAnchor(len(self.keyframes) - 1, self._poses[-1])
 
     def add(self, keyframe: Keyframe) -> None:
         self.keyframes.append(keyframe)

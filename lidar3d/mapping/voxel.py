@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VoxelMap", "voxel_downsample", "voxel_keys"]
+__all__ = ["VoxelMap", "group_by_voxel", "voxel_downsample", "voxel_keys"]
 
 _OFFSET = 1 << 20  # voxel indices are shifted into [0, 2^21) per axis before packing
 
@@ -42,6 +42,24 @@ def _group_sums(inverse: np.ndarray, values: np.ndarray, n_groups: int) -> np.nd
     )
 
 
+def group_by_voxel(points: np.ndarray, intensity: np.ndarray, voxel_m: float) -> tuple[np.ndarray, np.ndarray]:
+    """(N,3) points and their (N,) intensities grouped by voxel: (V,) sorted unique keys
+    (:func:`voxel_keys`) and (V,5) per voxel the sums of x, y, z and intensity and the count."""
+    keys = voxel_keys(points, voxel_m)
+    uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
+    sums = _group_sums(inverse, points, uniq.size)
+    isum = np.bincount(inverse, weights=intensity, minlength=uniq.size)
+    return uniq, np.column_stack([sums, isum, counts])
+
+
+def _interleaved(old: np.ndarray, at_old: np.ndarray, new: np.ndarray, at_new: np.ndarray) -> np.ndarray:
+    """The rows of ``old`` and ``new`` in one array, at rows ``at_old`` and ``at_new`` of it."""
+    out = np.empty((len(old) + len(new), *old.shape[1:]), old.dtype)
+    out[at_old] = old
+    out[at_new] = new
+    return out
+
+
 class VoxelMap:
     """Dense map accumulated scan by scan: per voxel, the mean position and intensity.
 
@@ -66,14 +84,7 @@ class VoxelMap:
         if len(points_world) == 0:
             return
         # Reduce each scan on its own first: a scan at 0.2 m shrinks about tenfold.
-        keys = voxel_keys(points_world, self.voxel_m)
-        uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-        sums = _group_sums(inverse, points_world, uniq.size)
-        isum = np.bincount(inverse, weights=intensity, minlength=uniq.size)
-        self._pending.append((uniq, np.column_stack([sums, isum, counts])))
-        self._pending_points += uniq.size
-        if self._pending_points >= self._merge_every:
-            self._merge()
+        self.insert_grouped(*group_by_voxel(points_world, intensity, self.voxel_m))
 
     def insert_grouped(self, keys: np.ndarray, sums: np.ndarray) -> None:
         """Add points already grouped by voxel of this map's size: (V,) unique ``keys`` and (V,5) per
@@ -85,21 +96,54 @@ class VoxelMap:
         if self._pending_points >= self._merge_every:
             self._merge()
 
+    def insert_weighted(self, points_world: np.ndarray, intensity: np.ndarray, weight: np.ndarray) -> None:
+        """Add (N,3) world-frame points that each stand for ``weight`` (N,) points (the voxel means of
+        another grid, ``weight`` their counts), with their (N,) mean intensities."""
+        if len(points_world) == 0:
+            return
+        keys = voxel_keys(points_world, self.voxel_m)
+        uniq, inverse = np.unique(keys, return_inverse=True)
+        weighted = np.column_stack([points_world * weight[:, None], intensity * weight, weight])
+        self._pending.append((uniq, _group_sums(inverse, weighted, uniq.size)))
+        self._pending_points += uniq.size
+        if self._pending_points >= self._merge_every:
+            self._merge()
+
     def _merge(self) -> None:
+        """Add the pending voxels into the map.
+
+        Only the map's voxels that the pending ones touch are summed again with them (the map's sum
+        first, then the pending in insertion order: the sums of merging everything at once); new
+        voxels are inserted in key order. Memory: the map once more at most, not the map's
+        concatenation with the pending sorted and summed again.
+        """
         if not self._pending:
             return
-        keys = np.concatenate([self._keys] + [k for k, _ in self._pending])
-        data = np.concatenate(
-            [np.column_stack([self._sum_xyz, self._sum_intensity, self._count])] + [d for _, d in self._pending]
-        )
-        uniq, inverse = np.unique(keys, return_inverse=True)
-        merged = _group_sums(inverse, data, uniq.size)
-        self._keys = uniq
-        self._sum_xyz = merged[:, :3]
-        self._sum_intensity = merged[:, 3]
-        self._count = merged[:, 4].astype(np.int64)
+        new_keys = np.concatenate([k for k, _ in self._pending])
+        new_data = np.concatenate([d for _, d in self._pending])
         self._pending = []
         self._pending_points = 0
+        at = np.minimum(np.searchsorted(self._keys, new_keys), max(self._keys.size - 1, 0))
+        touched = np.unique(at[self._keys[at] == new_keys]) if self._keys.size else np.zeros(0, np.int64)
+        old = np.column_stack([self._sum_xyz[touched], self._sum_intensity[touched], self._count[touched]])
+        uniq, inverse = np.unique(np.concatenate([self._keys[touched], new_keys]), return_inverse=True)
+        merged = _group_sums(inverse, np.concatenate([old, new_data]), uniq.size)
+        rows = np.searchsorted(self._keys, uniq)
+        known = np.isin(uniq, self._keys[touched], assume_unique=True)
+        self._sum_xyz[rows[known]] = merged[known, :3]
+        self._sum_intensity[rows[known]] = merged[known, 3]
+        self._count[rows[known]] = merged[known, 4].astype(np.int64)
+        fresh = ~known
+        if not fresh.any():
+            return
+        # Interleave the new voxels into the key order: where every old and every new row goes.
+        fresh_keys = uniq[fresh]
+        at_new = rows[fresh] + np.arange(fresh_keys.size)
+        at_old = np.arange(self._keys.size) + np.searchsorted(fresh_keys, self._keys)
+        self._keys = _interleaved(self._keys, at_old, fresh_keys, at_new)
+        self._sum_xyz = _interleaved(self._sum_xyz, at_old, merged[fresh, :3], at_new)
+        self._sum_intensity = _interleaved(self._sum_intensity, at_old, merged[fresh, 3], at_new)
+        self._count = _interleaved(self._count, at_old, merged[fresh, 4].astype(np.int64), at_new)
 
     def __len__(self) -> int:
         self._merge()
