@@ -8,11 +8,7 @@ pickable span), in ring and section order:
   :mod:`~lidar3d.features.smoothness`), highest first; the
   first ``sharp_per_section`` picks are sharp, the first ``less_sharp_per_section`` less sharp;
 * flats: pickable ground points with curvature below ``planar_threshold``, lowest first, at most
-  ``flat_per_section``; a ground point whose upper neighbour in the range image (next ring, same
-  column) is a non-ground return at nearly the same horizontal distance (within
-  ``flat_foot_ratio`` of it) is the foot of a vertical surface, not open ground, and is no flat
-  (ours: LeGO-LOAM's ring-angle ground test passes the lowest wall hit; on flat ground the next
-  ring lands 15 % or more farther for a VLP-16);
+  ``flat_per_section``;
 * each pick suppresses its w = ``curvature_half_window`` neighbours on either side, stopping at a
   column gap wider than ``neighbour_max_column_gap`` (or at the ring's end), for every later pick;
 * less flat: every section point that is not less sharp, voxel-downsampled per ring
@@ -32,7 +28,7 @@ from lidar3d.config import FeatureConfig
 from lidar3d.features.records import FeatureCloud, FeatureSet, Smoothness
 from lidar3d.segmentation.segment import Segmentation
 
-__all__ = ["select_features", "suppression_spans", "voxel_centroids_per_ring", "wall_feet"]
+__all__ = ["select_features", "suppression_spans", "voxel_centroids_per_ring"]
 
 
 def suppression_spans(
@@ -94,25 +90,6 @@ def _sorted_by_section(candidate, section, key, n_sections, lo, hi):
     return index.tolist(), lo[index].tolist(), hi[index].tolist(), bounds.tolist()
 
 
-def wall_feet(segmentation: Segmentation, ratio: float) -> np.ndarray:
-    """(M,) bool: segmented ground points whose range-image cell above (row + 1, same column) holds
-    a non-ground return whose horizontal distance differs from theirs by less than ``ratio`` of it."""
-    image = segmentation.image
-    row, column = segmentation.row, segmentation.column
-    feet = np.zeros(len(segmentation), dtype=bool)
-    candidate = np.flatnonzero(segmentation.is_ground & (row + 1 < image.range_m.shape[0]))
-    if candidate.size == 0 or ratio <= 0.0:
-        return feet
-    above_row, above_col = row[candidate] + 1, column[candidate]
-    above = image.points[above_row, above_col]
-    occupied = np.isfinite(above[:, 0]) & ~segmentation.ground_mask[above_row, above_col]
-    here_m = np.hypot(segmentation.points[candidate, 0], segmentation.points[candidate, 1])
-    above_m = np.hypot(above[:, 0], above[:, 1])
-    with np.errstate(invalid="ignore"):
-        feet[candidate] = occupied & (np.abs(above_m - here_m) < ratio * here_m)
-    return feet
-
-
 def select_features(segmentation: Segmentation, smoothness: Smoothness, config: FeatureConfig) -> FeatureSet:
     """Sharp, less-sharp, flat and less-flat features of one scan, lidar frame (see module doc)."""
     scan = segmentation.scan
@@ -132,7 +109,6 @@ def select_features(segmentation: Segmentation, smoothness: Smoothness, config: 
     n_sections = segmentation.ring_start.shape[0] * config.sections_per_ring
     edge_candidate = smoothness.pickable & ~segmentation.is_ground & (curvature > smoothness.edge_threshold)
     flat_candidate = smoothness.pickable & segmentation.is_ground & (curvature < config.planar_threshold)
-    flat_candidate &= ~wall_feet(segmentation, config.flat_foot_ratio)
     lo, hi = suppression_spans(segmentation, config.curvature_half_window, config.neighbour_max_column_gap)
     edges, edge_lo, edge_hi, edge_bounds = _sorted_by_section(edge_candidate, section, -curvature, n_sections, lo, hi)
     flats, flat_lo, flat_hi, flat_bounds = _sorted_by_section(flat_candidate, section, curvature, n_sections, lo, hi)
