@@ -318,6 +318,9 @@ class FeatureConfig:
     edge_threshold: float = _key(
         0.1, _closed(0.0, 1000.0, "m^2"), "edge candidates above this (unnormalised) curvature"
     )
+    edge_noise_false_rate: float = _key(
+        0.0, _closed(0.0, 0.5), "range noise on a smooth surface passes the edge test this rarely (0: fixed threshold)"
+    )
     planar_threshold: float = _key(0.1, _closed(0.0, 1000.0, "m^2"), "flat candidates below this curvature")
     sections_per_ring: int = _key(6, _closed(1, 360), "each ring is split into this many sections for picking")
     sharp_per_section: int = _key(2, _closed(0, 10000), "sharp edges per section (the first less-sharp picks)")

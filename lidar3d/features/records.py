@@ -97,12 +97,16 @@ class Smoothness:
         in_section: (M,) bool, points at least w from both ends of their ring (a full window).
         section: (M,) int64, ``ring * sections_per_ring + section`` of each point; -1 outside.
         pickable: (M,) bool, in a section and not rejected as occluded or beam-parallel.
+        edge_threshold: m^2, the curvature an edge candidate must exceed in this scan: the configured
+            ``edge_threshold`` or, when higher, the curvature the scan's own range noise reaches on a
+            smooth surface only once in ``1 / edge_noise_false_rate`` points.
     """
 
     curvature: np.ndarray
     in_section: np.ndarray
     section: np.ndarray
     pickable: np.ndarray
+    edge_threshold: float
 
     def __post_init__(self) -> None:
         curvature = np.asarray(self.curvature, dtype=np.float64)

@@ -3,7 +3,9 @@
 In every section of every ring (``sections_per_ring`` equal point-count chunks of the ring's
 pickable span), in ring and section order:
 
-* edges: pickable non-ground points with curvature above ``edge_threshold``, highest first; the
+* edges: pickable non-ground points with curvature above the scan's edge threshold (at least
+  ``edge_threshold``, higher where the scan's range noise is, see
+  :mod:`~lidar3d.features.smoothness`), highest first; the
   first ``sharp_per_section`` picks are sharp, the first ``less_sharp_per_section`` less sharp;
 * flats: pickable ground points with curvature below ``planar_threshold``, lowest first, at most
   ``flat_per_section``;
@@ -105,7 +107,7 @@ def select_features(segmentation: Segmentation, smoothness: Smoothness, config: 
     curvature = smoothness.curvature
     section = smoothness.section
     n_sections = segmentation.ring_start.shape[0] * config.sections_per_ring
-    edge_candidate = smoothness.pickable & ~segmentation.is_ground & (curvature > config.edge_threshold)
+    edge_candidate = smoothness.pickable & ~segmentation.is_ground & (curvature > smoothness.edge_threshold)
     flat_candidate = smoothness.pickable & segmentation.is_ground & (curvature < config.planar_threshold)
     lo, hi = suppression_spans(segmentation, config.curvature_half_window, config.neighbour_max_column_gap)
     edges, edge_lo, edge_hi, edge_bounds = _sorted_by_section(edge_candidate, section, -curvature, n_sections, lo, hi)
