@@ -5,11 +5,12 @@ Each drive runs twice in-process on its cached ``make bench`` bag, loop closure 
 configuration otherwise:
 
 1. clean: the accepted closures are counted (``M``);
-2. injected: ``max(1, round(fraction * M))`` of the accepted verifications, chosen at random by
-   ``--seed`` among the first ``M``, have their measured relative pose ``T_match_query`` shifted by a
-   random horizontal offset of 2-20 m (uniform length, uniform direction) before the loop closer
-   sees them: a perceptual alias that passed every ICP gate (fitness, overlap, correction). The
-   consistency checks, the pose graph's Huber loss and its outlier test then do what they do.
+2. injected, once per ``--seeds`` value: ``max(1, round(fraction * M))`` of the accepted
+   verifications, chosen at random by the seed among the first ``M``, have their measured
+   relative pose ``T_match_query`` shifted by a random horizontal offset of 2-20 m (uniform
+   length, uniform direction) before the loop closer sees them: a perceptual alias that passed
+   every ICP gate (fitness, overlap, correction). The consistency checks, the pose graph's Huber
+   loss and its outlier test then do what they do.
 
 The ATE (SE(3)-aligned, against the simulator's ground truth) of both runs and their difference are
 printed and written to ``--out`` as JSON. The injection wraps the verification of one
@@ -102,7 +103,7 @@ def _offsets(rng: np.random.Generator, count: int, among: int) -> dict[int, np.n
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scenarios", nargs="+", default=["loop", "hilly"])
-    parser.add_argument("--seed", type=int, default=0, help="choice of the corrupted closures and offsets")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2], help="one injected run per seed")
     parser.add_argument("--fraction", type=float, default=0.1, help="share of the accepted closures corrupted")
     parser.add_argument("--cache", type=Path, default=HERE / "cache", help="the suite's cached drives")
     parser.add_argument("--out", type=Path, default=None, help="write the results as JSON here")
@@ -119,27 +120,36 @@ def main(argv: list[str] | None = None) -> int:
         if accepted == 0:
             rows.append({"scenario": scenario, "accepted": 0, "note": "no closure to corrupt"})
             continue
-        rng = np.random.default_rng(args.seed)
-        corrupt = _offsets(rng, max(1, round(args.fraction * accepted)), accepted)
-        injected, closer = run_drive(case / "scans.bag", corrupt)
-        row = {
-            "scenario": scenario,
-            "accepted": accepted,
-            "closures_clean": int(clean.counts.get("loop_closures", 0)),
-            "closures_injected_run": int(injected.counts.get("loop_closures", 0)),
-            "injected": closer.injected,
-            "ate_clean_m": _ate_m(clean, truth),
-            "ate_injected_m": _ate_m(injected, truth),
-        }
-        row["ate_change_m"] = row["ate_injected_m"] - row["ate_clean_m"]
-        rows.append(row)
-        offsets = ", ".join(f"{q}->{m} {length:.1f} m" for q, m, length in closer.injected) or "none reached"
-        print(
-            f"{scenario}: {accepted} accepted verifications; injected {offsets}; ATE {row['ate_clean_m']:.3f} -> "
-            f"{row['ate_injected_m']:.3f} m ({row['ate_change_m']:+.3f} m); closures "
-            f"{row['closures_clean']} -> {row['closures_injected_run']}",
-            flush=True,
-        )
+        ate_clean = _ate_m(clean, truth)
+        for seed in args.seeds:
+            corrupt = _offsets(np.random.default_rng(seed), max(1, round(args.fraction * accepted)), accepted)
+            injected, closer = run_drive(case / "scans.bag", corrupt)
+            verdicts = {(c.query, c.match): c.verdict.value for c in injected.loop_candidates}
+            row = {
+                "scenario": scenario,
+                "seed": seed,
+                "accepted_clean": accepted,
+                "closures_clean": int(clean.counts.get("loop_closures", 0)),
+                "closures_injected_run": int(injected.counts.get("loop_closures", 0)),
+                "injected": [
+                    {"query": q, "match": m, "offset_m": length, "verdict": verdicts.get((q, m), "?")}
+                    for q, m, length in closer.injected
+                ],
+                "ate_clean_m": ate_clean,
+                "ate_injected_m": _ate_m(injected, truth),
+            }
+            row["ate_change_m"] = row["ate_injected_m"] - ate_clean
+            rows.append(row)
+            offsets = ", ".join(
+                f"{i['query']}->{i['match']} {i['offset_m']:.1f} m ({i['verdict']})" for i in row["injected"]
+            )
+            print(
+                f"{scenario} seed {seed}: {accepted} accepted verifications clean; "
+                f"injected {offsets or 'none reached'}; "
+                f"ATE {ate_clean:.3f} -> {row['ate_injected_m']:.3f} m ({row['ate_change_m']:+.3f} m); closures "
+                f"{row['closures_clean']} -> {row['closures_injected_run']}",
+                flush=True,
+            )
     if args.out is not None:
         args.out.write_text(json.dumps(rows, indent=2) + "\n")
     return 0
