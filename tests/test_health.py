@@ -12,6 +12,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from suite_header import SUITE_HEADER
 from test_summary import example_summary
 
 from lidar3d.batch.report import bag_row, write_report
@@ -456,26 +457,7 @@ def test_the_batch_line_of_a_bag_with_lost_stretches_says_so():
 def test_the_suite_tables_hold_the_health_check():
     from suite_report import render_markdown
 
-    header = {
-        "command": "eval/run_suite.py",
-        "date_utc": "2026-12-01 23:00 UTC",
-        "elapsed_min": 1.0,
-        "cpu": "cpu",
-        "n_cpus": 2,
-        "memory_gib": 4.0,
-        "load_start": "0.1",
-        "load_end": "0.1",
-        "lidar3d_version": "0",
-        "commit": "`abc`",
-        "python": "3.11",
-        "peer_versions": {},
-        "seeds": [0],
-        "durations_text": "full length",
-        "jobs": 1,
-        "peer_fractions": {},
-        "quick_command": "q",
-        "skipped": [],
-    }
+    header = SUITE_HEADER
     row = {
         "scenario": "blind_turn",
         "seed": 0,

@@ -9,30 +9,10 @@ import time
 from pathlib import Path
 
 import pytest
+from suite_header import SUITE_HEADER
 
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO / "eval"))
-
-HEADER = {
-    "command": "eval/run_suite.py",
-    "date_utc": "2026-12-02 05:00 UTC",
-    "elapsed_min": 1.0,
-    "cpu": "cpu",
-    "n_cpus": 2,
-    "memory_gib": 4.0,
-    "load_start": "0.1",
-    "load_end": "0.1",
-    "lidar3d_version": "0",
-    "commit": "`abc`",
-    "python": "3.11",
-    "peer_versions": {},
-    "seeds": [0],
-    "durations_text": "full length",
-    "jobs": 1,
-    "peer_fractions": {},
-    "quick_command": "q",
-    "skipped": [],
-}
 
 
 def _row(method: str, process_wall_s: float, tree_mib: float, stage_ms: dict, composite_ms: dict | None = None) -> dict:
@@ -67,13 +47,13 @@ def test_the_speed_table_puts_lidar3d_beside_kiss_icp():
         {"front_end": stats(14.0)},
     )
     kiss = _row("kiss-icp", 20.0, 118.0, {"read": stats(3.0), "register": stats(15.0)})
-    markdown = render_markdown([ours, kiss], HEADER)
+    markdown = render_markdown([ours, kiss], SUITE_HEADER)
     assert "## Speed against KISS-ICP" in markdown
     assert (
         "| loop | 690 | 30.0 | 20.0 | 1.50× | 45.0 / 30.0 | 14.0 | 1.5 | 6.0 | 12.0 | 0.1 (0.2) | 9.0 | 612 / 118 |"
         in markdown
     )
-    alone = render_markdown([ours], HEADER)  # without the peer: its cells are dashes
+    alone = render_markdown([ours], SUITE_HEADER)  # without the peer: its cells are dashes
     assert "| loop | 690 | 30.0 | – | – | 45.0 / – | 14.0 |" in alone
 
 
