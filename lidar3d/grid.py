@@ -1,10 +1,12 @@
 """``grid_run``: a ROS map_server occupancy grid of a finished run (library twin of ``lidar3d grid``).
 
-The run folder gives the poses (``trajectory_tum.txt``), the configuration (``config.toml``), the
-local ground (the lowest points of ``map.pcd``, see :class:`~lidar3d.mapping.occupancy_grid.GroundModel`)
-and the moving objects to leave out (the voxels of ``dynamic.pcd``); the scans are read again from
-the run's input bag(s) (``summary.json`` ``inputs``), each deskewed with the motion to the next pose
-as the map was, and ray cast into the grid (:class:`~lidar3d.mapping.occupancy_grid.OccupancyGridBuilder`).
+The run folder gives the poses (``trajectory_tum.txt``), the configuration (``config.toml``) and the
+moving objects to leave out (the voxels of ``dynamic.pcd``); the scans are read again from the run's
+input bag(s) (``summary.json`` ``inputs``), each deskewed with the motion to the next pose as the map
+was, twice: first the segmentation marks each scan's ground cells and the local ground is fitted to
+them (:class:`~lidar3d.mapping.occupancy_grid.GroundModel`; ``map.pcd``'s lowest points only when no
+scan has ground cells), then every scan is ray cast into the grid
+(:class:`~lidar3d.mapping.occupancy_grid.OccupancyGridBuilder`).
 Outputs in the output folder: ``map.yaml`` + ``map.pgm`` (map_server) and ``map.png`` (preview).
 """
 
@@ -12,13 +14,13 @@ from __future__ import annotations
 
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from lidar3d.config import load_config
+from lidar3d.config import Config, load_config
 from lidar3d.errors import BagError, ConfigError, OutputError
 from lidar3d.io.map_server import trinary_image, write_map_server
 from lidar3d.io.pcd import read_pcd
@@ -26,9 +28,17 @@ from lidar3d.io.run_folder import read_run_folder
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import read_tum
 from lidar3d.mapping.deskew import deskew_scan, twist_between
-from lidar3d.mapping.occupancy_grid import GridParams, GroundModel, OccupancyGrid, OccupancyGridBuilder
+from lidar3d.mapping.occupancy_grid import (
+    GridParams,
+    GroundModel,
+    OccupancyGrid,
+    OccupancyGridBuilder,
+    lowest_per_cell,
+)
 from lidar3d.mapping.se3 import transform_points
 from lidar3d.mapping.voxel import voxel_keys
+from lidar3d.records import Trajectory
+from lidar3d.segmentation import mark_ground, project_scan
 
 __all__ = ["GridOutcome", "check_grid_options", "grid_run"]
 
@@ -36,6 +46,7 @@ log = logging.getLogger(__name__)
 
 YAML_NAME = "map.yaml"
 PREVIEW_NAME = "map.png"
+GROUND_CELL_M = 1.0  # cell of the local ground model
 
 
 @dataclass(frozen=True, slots=True)
@@ -112,38 +123,22 @@ def grid_run(
     if summary.output("dynamic.pcd") is not None:
         dynamic_points, _ = read_pcd(run / "dynamic.pcd")
         dynamic_keys = np.unique(voxel_keys(dynamic_points, config.mapping.map_voxel_m))
-    ground = GroundModel.from_points(map_points)
+    inputs = [_input_path(run, p) for p in summary.inputs]
+    ground = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
+    if ground is None:  # no scan marked ground cells (e.g. segmentation failed on every scan)
+        log.warning("%s: no ground cells in the scans: the local ground is taken from map.pcd", run)
+        ground = GroundModel.from_points(lowest_per_cell(map_points, GROUND_CELL_M), GROUND_CELL_M)
     positions = trajectory.positions_m
     reach = params.max_range_m
     bounds = np.array([positions[:, :2].min(axis=0) - reach, positions[:, :2].max(axis=0) + reach])
     builder = OccupancyGridBuilder(params, ground, bounds)
-    inputs = [_input_path(run, p) for p in summary.inputs]
-    stamps, poses = trajectory.stamps_ns, trajectory.T_world_lidar
-    model = config.sensor.resolved_model
     n_scans = n_left_out = 0
-    with open_scan_source(inputs, config) as source:
-        for scan in source:
-            if scan.stamp_ns > stamps[-1]:
-                break
-            i = int(np.searchsorted(stamps, scan.stamp_ns))
-            if stamps[i] != scan.stamp_ns:
-                continue
-            a, b = (i, i + 1) if i + 1 < len(stamps) else (max(i - 1, 0), i)
-            twist = twist_between(poses[a], poses[b], (stamps[b] - stamps[a]) * 1e-9) if a != b else np.zeros(6)
-            final = deskew_scan(scan, twist)
-            r = np.linalg.norm(final.points, axis=1)
-            keep = (r >= config.sensor.min_range_m) & (r <= model.max_range_m)
-            points = transform_points(poses[i], final.points[keep])
-            if dynamic_keys.size:
-                keys = voxel_keys(points, config.mapping.map_voxel_m)
-                at = np.minimum(np.searchsorted(dynamic_keys, keys), dynamic_keys.size - 1)
-                moving = dynamic_keys[at] == keys
-                n_left_out += int(moving.sum())
-                points = points[~moving]
-            builder.add(poses[i][:3, 3], points)
-            n_scans += 1
-            if on_scan is not None:
-                on_scan(n_scans, len(stamps))
+    for placed in _placed_scans(inputs, config, trajectory, dynamic_keys):
+        n_left_out += placed.n_moving
+        builder.add(placed.origin_world, placed.points_world)
+        n_scans += 1
+        if on_scan is not None:
+            on_scan(n_scans, len(trajectory))
     grid = builder.grid()
     out = Path(out_dir)
     try:
@@ -160,6 +155,74 @@ def grid_run(
         out / PREVIEW_NAME, image, params.resolution_m, grid.origin_xy_m, positions[:, :2], title=title
     )
     return GridOutcome(grid, out / YAML_NAME, pgm, png, n_scans, summary.partial, n_left_out, time.perf_counter() - t0)
+
+
+@dataclass(frozen=True, slots=True)
+class _PlacedScan:
+    """One scan of the run, deskewed and in the world frame (moving objects left out).
+
+    Attributes:
+        origin_world: (3,) lidar position.
+        points_world: (N,3) its points.
+        ground: (N,) bool, the segmentation's ground cells.
+        n_moving: points left out as moving objects.
+    """
+
+    origin_world: np.ndarray
+    points_world: np.ndarray
+    ground: np.ndarray
+    n_moving: int
+
+
+def _placed_scans(
+    inputs: list[Path], config: Config, trajectory: Trajectory, dynamic_keys: np.ndarray, *, segment: bool = False
+) -> Iterator[_PlacedScan]:
+    """The run's scans that have a pose, deskewed with the motion to the next pose as the map was,
+    placed in the world; with ``segment`` their ground cells marked (else ``ground`` is all False)."""
+    stamps, poses = trajectory.stamps_ns, trajectory.T_world_lidar
+    model = config.sensor.resolved_model
+    with open_scan_source(inputs, config) as source:
+        for scan in source:
+            if scan.stamp_ns > stamps[-1]:
+                break
+            i = int(np.searchsorted(stamps, scan.stamp_ns))
+            if stamps[i] != scan.stamp_ns:
+                continue
+            a, b = (i, i + 1) if i + 1 < len(stamps) else (max(i - 1, 0), i)
+            twist = twist_between(poses[a], poses[b], (stamps[b] - stamps[a]) * 1e-9) if a != b else np.zeros(6)
+            final = deskew_scan(scan, twist)
+            r = np.linalg.norm(final.points, axis=1)
+            keep = (r >= config.sensor.min_range_m) & (r <= model.max_range_m)
+            ground = np.zeros(len(scan), bool)
+            if segment:
+                image = project_scan(final, config.sensor, config.segmentation)
+                mask = mark_ground(image, config.segmentation, config.sensor)
+                ground[image.point_index[mask]] = True
+            points = transform_points(poses[i], final.points[keep])
+            ground = ground[keep]
+            n_moving = 0
+            if dynamic_keys.size:
+                keys = voxel_keys(points, config.mapping.map_voxel_m)
+                at = np.minimum(np.searchsorted(dynamic_keys, keys), dynamic_keys.size - 1)
+                moving = dynamic_keys[at] == keys
+                n_moving = int(moving.sum())
+                points, ground = points[~moving], ground[~moving]
+            yield _PlacedScan(poses[i][:3, 3], points, ground, n_moving)
+
+
+def _ground_of_scans(
+    inputs: list[Path], config: Config, trajectory: Trajectory, dynamic_keys: np.ndarray
+) -> GroundModel | None:
+    """The local ground fitted to the ground cells the segmentation marks in every scan (the lowest
+    per ``GROUND_CELL_M`` cell over all scans; None when no scan has any)."""
+    lowest = [
+        lowest_per_cell(placed.points_world[placed.ground], GROUND_CELL_M)
+        for placed in _placed_scans(inputs, config, trajectory, dynamic_keys, segment=True)
+    ]
+    every = np.concatenate(lowest) if lowest else np.zeros((0, 3))
+    if not len(every):
+        return None
+    return GroundModel.from_points(lowest_per_cell(every, GROUND_CELL_M), GROUND_CELL_M)
 
 
 def _input_path(run: Path, recorded: str) -> Path:

@@ -20,7 +20,7 @@ from lidar3d.io.map_server import (
 )
 from lidar3d.io.run_folder import check_run_folder
 from lidar3d.io.trajectory_io import read_tum
-from lidar3d.mapping.occupancy_grid import GridParams, GroundModel, OccupancyGridBuilder
+from lidar3d.mapping.occupancy_grid import GridParams, GroundModel, OccupancyGridBuilder, lowest_per_cell
 from lidar3d.run import run_bag
 
 # ---------------------------------------------------------------- ray casting on hand-made scenes
@@ -203,3 +203,32 @@ def test_a_run_whose_bag_is_gone_names_it(loop_run, tmp_path, capsys):
     publish_set(folder, dataclasses.replace(summary, inputs=("/nowhere/drive.bag",)), keep=keep)
     assert main(["grid", str(folder), "--out", str(tmp_path / "g")]) == 1
     assert "/nowhere/drive.bag" in capsys.readouterr().err
+
+
+# ---------------------------------------------------------------- the local ground model
+
+
+def test_the_ground_model_follows_a_slope_and_ignores_a_car_on_it():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform(-20.0, 20.0, (20000, 2))
+    xy = xy[np.abs(xy[:, 1]) < 8.0]  # a road 16 m wide; beyond it nothing was seen (filled)
+
+    def terrain(q):
+        return 0.14 * q[:, 0] + 0.05 * q[:, 1]  # 8 degrees up the road, 3 across
+
+    ground = np.column_stack([xy, terrain(xy) + rng.normal(0.0, 0.01, len(xy))])
+    car_xy = np.column_stack([rng.uniform(4.0, 8.0, 300), rng.uniform(-1.0, 1.0, 300)])
+    car = np.column_stack([car_xy, terrain(car_xy) + 0.4])  # the underside of a car, marked ground by mistake
+    model = GroundModel.from_points(lowest_per_cell(np.concatenate([ground, car]), 1.0), 1.0)
+    query = np.array([[0.3, 0.7], [6.0, 0.0], [-15.2, 4.4], [10.0, 12.0]])  # road, under the car, far, off the road
+    np.testing.assert_allclose(model.height_at(query[:3]), terrain(query[:3]), atol=0.06)
+    assert abs(model.height_at(query[3:])[0] - terrain(query[3:])[0]) < 0.3  # the slope continued past the edge
+    # The old model (the lowest point of the 3x3 cells around) was 0.2 m low here: road 0.3 m up would be an obstacle.
+    assert (model.height_at(query[:1]) > terrain(query[:1]) - 0.06).all()
+
+
+def test_lowest_per_cell_keeps_one_point_per_cell():
+    points = np.array([[0.2, 0.2, 1.0], [0.8, 0.1, 0.5], [1.5, 0.5, 2.0], [-0.5, 0.5, 3.0]])
+    lowest = lowest_per_cell(points, 1.0)
+    assert sorted(map(tuple, lowest)) == sorted([(0.8, 0.1, 0.5), (1.5, 0.5, 2.0), (-0.5, 0.5, 3.0)])
+    assert lowest_per_cell(np.zeros((0, 3)), 1.0).shape == (0, 3)

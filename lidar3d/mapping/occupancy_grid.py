@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridParams", "GroundModel", "OccupancyGrid", "OccupancyGridBuilder"]
+__all__ = ["GridParams", "GroundModel", "OccupancyGrid", "OccupancyGridBuilder", "lowest_per_cell"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,44 +53,138 @@ class GridParams:
 
 @dataclass(frozen=True, slots=True)
 class GroundModel:
-    """Local ground height on a coarse grid: per cell the lowest map point, cells without points
-    filled from the nearest cell with one, then the lowest of the 3x3 cells around (so a cell under
-    a car, whose lowest point is the car's underside, takes the ground beside it).
+    """Local ground surface on a coarse grid: per cell a plane z = height + slope . (xy - centre),
+    fitted robustly to the lowest map points of the cells around it.
+
+    Each cell's lowest point is its ground candidate (at that point's own x, y, so a slope inside the
+    cell is no error). Per cell a least-squares plane is fitted to the candidates of the
+    ``(2 window + 1)`` cells square around it; candidates more than ``reject_above_m`` above their own
+    cell's plane (a car's underside, a bush, a cell that holds only a wall) or ``reject_below_m``
+    below it are dropped and the planes fitted again (``iterations`` times). Cells with fewer than
+    three inliers around take the plane of the nearest cell that has one, continued to their centre.
 
     Attributes:
         origin_xy_m: (2,) world x, y of the corner of cell (0, 0).
         cell_m: cell side.
-        height_m: (nx, ny) ground height, world z.
+        height_m: (nx, ny) ground height at each cell's centre, world z.
+        slope: (nx, ny, 2) dz/dx, dz/dy of each cell's plane.
     """
 
     origin_xy_m: np.ndarray
     cell_m: float
     height_m: np.ndarray
+    slope: np.ndarray
 
     @classmethod
-    def from_points(cls, points_world: np.ndarray, cell_m: float = 1.0) -> GroundModel:
-        """The ground model of a map's (N,3) points (N >= 1)."""
+    def from_points(
+        cls,
+        points_world: np.ndarray,
+        cell_m: float = 1.0,
+        *,
+        window: int = 4,
+        reject_above_m: float = 0.15,
+        reject_below_m: float = 0.5,
+        iterations: int = 3,
+    ) -> GroundModel:
+        """The ground model of a map's (N,3) world points (N >= 1)."""
         from scipy import ndimage
 
         if not len(points_world):
             raise ValueError("a ground model needs at least one point")
         origin = np.floor(points_world[:, :2].min(axis=0) / cell_m) * cell_m - cell_m
         ij = np.floor((points_world[:, :2] - origin) / cell_m).astype(np.int64)
-        shape = tuple(int(v) for v in ij.max(axis=0) + 2)
-        low = np.full(shape, np.inf)
-        np.minimum.at(low, (ij[:, 0], ij[:, 1]), points_world[:, 2])
-        empty = ~np.isfinite(low)
-        if empty.any():
-            nearest = ndimage.distance_transform_edt(empty, return_distances=False, return_indices=True)
-            low = low[tuple(nearest)]
-        return cls(origin, float(cell_m), ndimage.minimum_filter(low, size=3, mode="nearest"))
+        shape = (int(ij[:, 0].max()) + 2, int(ij[:, 1].max()) + 2)
+        first = _lowest_index(ij, points_world[:, 2])
+        # Candidates: the lowest point per cell, as offsets (cell units) from its cell's centre.
+        has = np.zeros(shape, bool)
+        offset = np.zeros(shape + (2,))
+        z = np.zeros(shape)
+        ci, cj = ij[first, 0], ij[first, 1]
+        has[ci, cj] = True
+        offset[ci, cj] = (points_world[first, :2] - origin) / cell_m - ij[first] - 0.5
+        z[ci, cj] = points_world[first, 2]
+        z_ref = float(np.median(z[has]))  # moments about a typical height keep the fit well conditioned
+        dz = np.where(has, z - z_ref, 0.0)
+        inlier = has.copy()
+        height = np.zeros(shape)
+        slope = np.zeros(shape + (2,))
+        fitted = np.zeros(shape, bool)
+        for _ in range(iterations + 1):
+            height, slope, fitted = _fit_planes(inlier, offset, dz, window)
+            residual = dz - height - (slope * offset).sum(axis=2)
+            inlier = has & fitted & (residual <= reject_above_m) & (residual >= -reject_below_m)
+            inlier |= has & ~fitted
+        if not fitted.any():
+            fitted = has
+            height = dz
+        missing = ~fitted
+        if missing.any():
+            nearest = ndimage.distance_transform_edt(missing, return_distances=False, return_indices=True)
+            ni, nj = nearest[0], nearest[1]
+            di = np.indices(shape)[0] - ni
+            dj = np.indices(shape)[1] - nj
+            slope = slope[ni, nj]
+            height = height[ni, nj] + slope[..., 0] * di + slope[..., 1] * dj
+        return cls(origin, float(cell_m), height + z_ref, slope / cell_m)
 
     def height_at(self, xy: np.ndarray) -> np.ndarray:
-        """(N,) ground height under (N,2) world x, y (the nearest cell outside the model)."""
-        ij = np.floor((xy - self.origin_xy_m) / self.cell_m).astype(np.int64)
+        """(N,) ground height under (N,2) world x, y (the nearest cell's plane outside the model)."""
+        u = (xy - self.origin_xy_m) / self.cell_m
+        ij = np.floor(u).astype(np.int64)
         i = np.clip(ij[:, 0], 0, self.height_m.shape[0] - 1)
         j = np.clip(ij[:, 1], 0, self.height_m.shape[1] - 1)
-        return self.height_m[i, j]
+        along = (u[:, 0] - i - 0.5) * self.cell_m, (u[:, 1] - j - 0.5) * self.cell_m
+        slope = self.slope[i, j]
+        return self.height_m[i, j] + slope[:, 0] * along[0] + slope[:, 1] * along[1]
+
+
+def lowest_per_cell(points_world: np.ndarray, cell_m: float) -> np.ndarray:
+    """(M,3) the lowest of the (N,3) world points in each ``cell_m`` square (cells at multiples of
+    ``cell_m``: those of a :class:`GroundModel` with that cell), in no particular order."""
+    if not len(points_world):
+        return points_world.reshape(0, 3)
+    ij = np.floor(points_world[:, :2] / cell_m).astype(np.int64)
+    return points_world[_lowest_index(ij - ij.min(axis=0), points_world[:, 2])]
+
+
+def _lowest_index(ij: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """Index of the lowest ``z`` among the points of each cell (N,2) ``ij`` (non-negative)."""
+    flat = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
+    order = np.lexsort((z, flat))
+    return order[np.r_[True, flat[order][1:] != flat[order][:-1]]]
+
+
+def _fit_planes(
+    inlier: np.ndarray, offset: np.ndarray, dz: np.ndarray, window: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per cell the least-squares plane through the inlier candidates of the cells within ``window``:
+    height at the cell's centre, (dz/du, dz/dv) in cell units, and whether the fit is determined
+    (three or more inliers, not all on a line)."""
+    nx, ny = inlier.shape
+    w = window
+    pad = ((w, w), (w, w))
+    weight = np.pad(inlier.astype(np.float64), pad)
+    pu = np.pad(offset[..., 0], pad)
+    pv = np.pad(offset[..., 1], pad)
+    pz = np.pad(dz, pad)
+    sums = np.zeros((9, nx, ny))
+    for a in range(-w, w + 1):
+        for b in range(-w, w + 1):
+            sl = (slice(w + a, w + a + nx), slice(w + b, w + b + ny))
+            m = weight[sl]
+            u = (pu[sl] + a) * m
+            v = (pv[sl] + b) * m
+            zz = pz[sl] * m
+            uu, vv = pu[sl] + a, pv[sl] + b
+            sums += np.stack([m, u, v, u * uu, u * vv, v * vv, zz, u * pz[sl], v * pz[sl]])
+    n, su, sv, suu, suv, svv, sz, suz, svz = sums
+    A = np.stack([np.stack([n, su, sv], -1), np.stack([su, suu, suv], -1), np.stack([sv, suv, svv], -1)], -2)
+    rhs = np.stack([sz, suz, svz], -1)
+    det = np.linalg.det(A)
+    ok = (n >= 3) & (np.abs(det) > 1e-6 * np.maximum(n, 1) ** 3)
+    solution = np.zeros((nx, ny, 3))
+    solution[ok] = np.linalg.solve(A[ok], rhs[ok][..., None])[..., 0]
+    return solution[..., 0], solution[..., 1:], ok
 
 
 @dataclass(frozen=True, slots=True)
@@ -145,6 +239,7 @@ class OccupancyGridBuilder:
     def add(self, origin_world: np.ndarray, points_world: np.ndarray) -> None:
         """Ray cast one sweep: sensor position (3,) and its (N,3) points, world frame."""
         p = self.params
+        ground = self.ground
         low, high = p.band_m
         sweep = self._n_sweeps
         self._n_sweeps += 1
@@ -154,8 +249,8 @@ class OccupancyGridBuilder:
         length = np.hypot(delta[:, 0], delta[:, 1])
         ok = (length > p.resolution_m) & (length <= p.max_range_m)
         points_world, delta, length = points_world[ok], delta[ok], length[ok]
-        h0 = float(origin_world[2] - self.ground.height_at(origin_world[None, :2])[0])
-        h1 = points_world[:, 2] - self.ground.height_at(points_world[:, :2])
+        h0 = float(origin_world[2] - ground.height_at(origin_world[None, :2])[0])
+        h1 = points_world[:, 2] - ground.height_at(points_world[:, :2])
         # Where along the beam (fraction s of its length) its height above ground is in the band.
         slope = h1 - h0
         with np.errstate(divide="ignore", invalid="ignore"):
