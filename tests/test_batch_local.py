@@ -191,6 +191,13 @@ def test_rerun_skips_finished_bags_and_overwrite_redoes_them(first_run, drives):
     assert _mtime(out / NAMES["c"] / JOB_FILE) == stamps["c"]
 
 
+def _interactive_sigint() -> None:
+    """In the child before exec: SIGINT as a terminal gives it. A test run started in the background
+    of a non-interactive shell (a CI script, ``cmd &``) ignores SIGINT, the child would inherit that,
+    and Python keeps an inherited SIG_IGN, so the test's Ctrl-C would never arrive."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _start_cli(args: list[str]) -> subprocess.Popen:
     code = "import sys; from lidar3d.cli.main import main; sys.exit(main(sys.argv[1:]))"
     return subprocess.Popen(
@@ -199,6 +206,7 @@ def _start_cli(args: list[str]) -> subprocess.Popen:
         stderr=subprocess.PIPE,
         text=True,
         start_new_session=True,  # its own process group: signals reach the workers as Ctrl-C would
+        preexec_fn=_interactive_sigint,
     )
 
 
