@@ -9,7 +9,8 @@ LeGO-LOAM featureAssociation, vectorised over the whole segmented cloud:
   side of the step nearest to it are rejected (i-w..i when i is farther, i+1..i+w+1 when i+1 is);
 * beam-parallel surfaces (FA:671-676): point i is rejected when both |r_{i-1} - r_i| and
   |r_{i+1} - r_i| exceed ``parallel_beam_ratio`` * r_i;
-* the edge threshold of the scan (ours): on a smooth surface, range noise of standard deviation
+* the edge threshold of the scan (ours, optional: ``edge_noise_false_rate`` > 0; off by default, see
+  docs/stages/features.md for what it gains and costs): on a smooth surface, range noise of standard deviation
   sigma alone gives c_i = (2w(2w + 1)) sigma^2 chi^2_1 (the sum of 2w noisy neighbours minus 2w
   times a noisy centre). LeGO-LOAM's fixed 0.1 m^2 is exceeded by 13 % of the points of a flat wall
   at the VLP-16's sigma of 2 cm, and those random "edges" match random lines through the random
