@@ -397,6 +397,16 @@ class MappingConfig:
     )
     redeskew_lever_m: float = _key(10.0, _closed(0.0, 10000.0, "m"), "lever arm of that test's rotation part")
     redeskew_iterations: int = _key(4, _ITERATIONS, "iteration limit of the second registration")
+    # The Gauss-Newton information holds the correspondences fixed; where matches are random
+    # (range noise on flat walls passing the edge threshold) it claims a direction the cost does
+    # not hold. The registration is probed along its weakest translation by this shift (more than
+    # the submap's point spacing) with the matches found again; see docs/stages/scan-to-map.md.
+    probe_shift_m: float = _key(0.25, _closed(0.0, 10.0, "m"), "probe shift of the weakest translation (0: off)")
+    probe_observed_share: float = _key(
+        0.5, _FRACTION, "a probe pulled back by less than this share of the shift: that direction is degenerate"
+    )
+    probe_iterations: int = _key(4, _ITERATIONS, "iteration limit of the solve without the directions the probe lost")
+    probe_point_stride: int = _key(4, _closed(1, 1000), "the probe moves every n-th corner and surface point")
 
 
 @dataclass(frozen=True, slots=True)

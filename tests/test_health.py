@@ -283,12 +283,12 @@ def test_health_csv_round_trip(tmp_path):
     "text, message",
     [
         ("a,b\n", r"not a health table"),
-        (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", r"health\.csv:2: 3 columns, expected 14"),
+        (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", rf"health\.csv:2: 3 columns, expected {len(HEALTH_COLUMNS)}"),
         (
-            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0\n",
+            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0,1\n",
             r"health\.csv:2: flag 'fine' is not one of",
         ),
-        (",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0\n", r"health\.csv:2: 'yes' is not 0 or 1"),
+        (",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1\n", r"health\.csv:2: 'yes' is not 0 or 1"),
     ],
 )
 def test_a_malformed_health_csv_names_the_file_and_line(tmp_path, text, message):

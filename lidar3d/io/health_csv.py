@@ -5,7 +5,8 @@ degraded / lost), ``observed`` (0/1: the scan observed every direction of its po
 ``dead_reckoned_m`` and ``blind_m`` (travel with some direction dead-reckoned, and with the pose not
 observed, since the pose was last fully observed), then the scan's measures: ``registered``,
 ``motion_model_only`` (0/1), ``rows``, ``prior_axes``, ``weakest_sigma_m`` (``inf`` when the
-registration did not run), ``step_m``, ``odometry_disagreement_m``, ``prediction_offset_m``. See
+registration did not run), ``step_m``, ``odometry_disagreement_m``, ``prediction_offset_m``, ``probe_share`` (0 when the
+registration did not run). See
 :mod:`lidar3d.mapping.health` for what each means.
 """
 
@@ -39,6 +40,7 @@ HEALTH_COLUMNS = (
     "step_m",
     "odometry_disagreement_m",
     "prediction_offset_m",
+    "probe_share",
 )
 
 
@@ -73,6 +75,7 @@ def write_health_csv(path: str | Path, scan_indices: Sequence[int] | np.ndarray,
                 _number(m.step_m),
                 _number(m.odometry_disagreement_m),
                 _number(m.prediction_offset_m),
+                _number(m.probe_share),
             )
         )
     write_text_atomic(path, buffer.getvalue())
@@ -101,6 +104,7 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         step_m=float(row["step_m"]),
         odometry_disagreement_m=float(row["odometry_disagreement_m"]),
         prediction_offset_m=float(row["prediction_offset_m"]),
+        probe_share=float(row["probe_share"]),
     )
     health = ScanHealth(
         stamp_ns=int(row["stamp_ns"]),

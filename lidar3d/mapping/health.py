@@ -79,6 +79,10 @@ class ScanMeasures:
         odometry_disagreement_m: refined step against the scan-to-scan odometry step, metres
             (translation difference plus ``lever_m`` times the rotation difference in radians).
         prediction_offset_m: refined step against the motion model's prediction, in the same units.
+        probe_share: the share of a move along its weakest translation the registration's rows
+            pulled back (:func:`~lidar3d.mapping.registration.probe_return_share`; below
+            ``mapping.probe_observed_share`` that direction was taken as degenerate), 0 when the
+            registration did not run, 1 when it was not probed.
     """
 
     registered: bool
@@ -89,6 +93,7 @@ class ScanMeasures:
     step_m: float
     odometry_disagreement_m: float
     prediction_offset_m: float
+    probe_share: float = 1.0
 
     def observes_pose(self, config: HealthConfig) -> bool:
         """The scan observed its pose: registered, observable enough and consistent with the odometry."""
@@ -199,6 +204,7 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         step_m=step_m,
         odometry_disagreement_m=odometry_disagreement_m,
         prediction_offset_m=prediction_offset_m,
+        probe_share=registration.probe_return_share if registration is not None else 0.0,
     )
 
 

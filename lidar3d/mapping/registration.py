@@ -43,6 +43,7 @@ __all__ = [
     "line_rows_from_directions",
     "observed_share",
     "plane_rows_from_normals",
+    "probe_return_share",
     "solve_pose",
 ]
 
@@ -122,6 +123,9 @@ class SolveResult:
             axes that were not free; all zero when the solve did not run).
         residual_sigma_m: the weighted residual standard deviation ``sigma`` of the last
             iteration (NaN when the solve did not run).
+        probe_return_share: how much of the rows' information along their weakest translation the
+            cost really has, from :func:`probe_return_share` (1 when not probed); the
+            ``information`` is already scaled by it along that direction.
     """
 
     T_target_source: np.ndarray
@@ -132,6 +136,7 @@ class SolveResult:
     min_eigenvalue: float
     information: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
     residual_sigma_m: float = float("nan")
+    probe_return_share: float = 1.0
 
 
 def plane_rows_from_normals(source_index: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> MatchRows:
@@ -346,6 +351,85 @@ def _wrapped_difference(x: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return d
 
 
+def _rows_along(matches: MatchRows, source: np.ndarray, x: np.ndarray, step: np.ndarray, level_normal_z: float):
+    """(q, along) at the pose ``x``: the matched source points in the target frame (K, 3) and each
+    row's derivative along the parameter step ``step`` (6,) (the Jacobian of :func:`solve_pose`,
+    level rows informing only z, roll and pitch)."""
+    R, dR = _rotation_and_derivatives(x)
+    p = source[matches.source_index]
+    n = matches.normal
+    q = p @ R.T + x[:3]
+    J = np.empty((len(matches), 6))
+    J[:, :3] = n
+    for a in range(3):
+        J[:, 3 + a] = np.einsum("ij,ij->i", n, p @ dR[a].T)
+    if level_normal_z > 0:
+        J[np.ix_(np.abs(n[:, 2]) >= level_normal_z, (0, 1, 5))] = 0.0
+    return q, J @ step
+
+
+def probe_return_share(
+    T_target_source: np.ndarray,
+    source: np.ndarray,
+    find_matches: Callable[[np.ndarray, float | None], MatchRows],
+    step: np.ndarray,
+    kernel_m: float,
+    robust_scale_m: float,
+    level_normal_z: float = 0.0,
+) -> float:
+    """The share of the rows' information along a pose change ``step`` (6,) of ``[tx, ty, tz, roll,
+    pitch, yaw]`` (m, rad: the probe's size, e.g. 0.25 m along one translation or 0.25 m over a
+    point's lever as an angle) that the cost function really has near the pose ``T_target_source``
+    (4, 4); ``source`` (N, 3) in the source frame, ``find_matches`` as in :func:`solve_pose`.
+
+    The Gauss-Newton information ``J^T W J`` is the cost's curvature with the correspondences
+    held fixed. Where the matches themselves are random (range noise on a flat wall passing the
+    edge threshold: the lines fitted to such "edges" point anywhere in the wall), every fixed set
+    of matches is curved, but the cost with correspondences found again is flat: the data would
+    hold any pose. This tells the two apart by the basin the rows form: the pose is moved by
+    ``+-step``, the matches are found again, and one Newton step along ``step`` says how far they
+    pull it back. Each source point weighs as its rows did at the pose (Geman-McClure of
+    ``robust_scale_m``, 0: LOAM's weight), and its rows after the move by a kernel of scale
+    ``kernel_m`` (about twice the points' displacement). Rows on real structure pull the pose back
+    the whole way (share 1); random matches pull it nowhere (share 0); a mix pulls back by the real
+    rows' share of the information. The points must move more than the submap's point spacing so
+    that the matches change. Rows as level as ``level_normal_z`` inform only z, roll and pitch (as
+    in :func:`solve_pose`). Returns the mean of the two sides, in [0, 1]; 1 when there is nothing to
+    probe.
+    """
+    x0 = _xyz_rpy(T_target_source)
+    R0 = T_target_source[:3, :3]
+    at_pose = find_matches(source @ R0.T + T_target_source[:3, 3], None)
+    if len(at_pose) == 0:
+        return 1.0
+    q0 = source[at_pose.source_index] @ R0.T + T_target_source[:3, 3]
+    residual0 = np.einsum("ij,ij->i", at_pose.normal, q0) + at_pose.offset
+    if robust_scale_m > 0:
+        row_weight = (robust_scale_m**2 / (robust_scale_m**2 + residual0**2)) ** 2
+    else:
+        row_weight = np.clip(1.0 - 0.9 * np.abs(residual0), 0.0, None) ** 2
+    point_weight = np.zeros(len(source))
+    point_weight[at_pose.source_index] = 1.0
+    np.minimum.at(point_weight, at_pose.source_index, row_weight)
+    c2 = kernel_m**2
+    shares = []
+    for sign in (1.0, -1.0):
+        x = x0 + sign * step
+        R = _rotation_and_derivatives(x)[0]
+        matches = find_matches(source @ R.T + x[:3], None)
+        if len(matches) == 0:
+            return 1.0
+        q, along = _rows_along(matches, source, x, step, level_normal_z)
+        residual = np.einsum("ij,ij->i", matches.normal, q) + matches.offset
+        weight = point_weight[matches.source_index] * (c2 / (c2 + residual**2)) ** 2
+        curvature = float(weight @ along**2)
+        if curvature <= 0.0:
+            return 1.0
+        # One Newton step along the probe (in units of the step): -g / H; a full return is -sign.
+        shares.append(-float((weight * along) @ residual) / curvature / -sign)
+    return float(np.clip(np.mean(shares), 0.0, 1.0))
+
+
 def solve_pose(
     T_init: np.ndarray,
     source: np.ndarray,
@@ -364,6 +448,8 @@ def solve_pose(
     prior: PosePrior | None = None,
     min_residual_sigma_m: float = 0.01,
     initial_scale_m: float = 0.0,
+    data_scaling: np.ndarray | None = None,
+    anneal: bool = True,
 ) -> SolveResult:
     """Estimate ``T_target_source`` minimising the matched rows' residuals.
 
@@ -392,6 +478,10 @@ def solve_pose(
         initial_scale_m: with the Geman-McClure kernel, its scale at the first iteration when
             that is wider than ``4 * robust_scale_m`` (how far the points may be off at the start,
             e.g. from a prior's uncertainty); it halves every iteration down to the scale.
+        data_scaling: (6, 6) ``M`` applied to the rows' Jacobian (``J M``): the rows' information
+            becomes ``M^T H M`` (:func:`~lidar3d.mapping.scan_to_map.register_to_submap` scales
+            a direction whose information the cost does not hold, see :func:`probe_return_share`).
+        anneal: False starts the Geman-McClure kernel at its final scale (a warm start).
 
     Returns a :class:`SolveResult`; when there are fewer than ``min_rows`` rows on the first
     iteration, the initial guess is returned with ``iterations == 0``.
@@ -416,7 +506,11 @@ def solve_pose(
         # Geman-McClure scale: it starts wide and halves each iteration down to robust_scale_m,
         # so a poor initial guess still finds rows while the final estimate ignores off-surface
         # matches.
-        scale_m = max(robust_scale_m, max(4.0 * robust_scale_m, initial_scale_m) * 0.5**iteration)
+        scale_m = (
+            max(robust_scale_m, max(4.0 * robust_scale_m, initial_scale_m) * 0.5**iteration)
+            if anneal
+            else robust_scale_m
+        )
         if iteration % rematch_every == 0:
             q_all = source @ T[:3, :3].T + T[:3, 3]
             matches = find_matches(q_all, 3.0 * scale_m if robust_scale_m > 0 else None)
@@ -452,6 +546,8 @@ def solve_pose(
             J[np.ix_(level, (0, 1, 5))] = 0.0
         w = weight[use]
         Jf = J[:, free] * w[:, None]
+        if data_scaling is not None:
+            Jf = Jf @ data_scaling[np.ix_(free, free)]
         rf = residual[use] * w
         H = Jf.T @ Jf
         g = Jf.T @ rf

@@ -8,11 +8,15 @@ degeneracy threshold 100.
 
 from __future__ import annotations
 
+import dataclasses
+import functools
+from collections.abc import Callable
+
 import numpy as np
 
 from lidar3d.config import MappingConfig
 from lidar3d.mapping.keyframes import SubmapTarget
-from lidar3d.mapping.registration import MatchRows, PosePrior, SolveResult, solve_pose
+from lidar3d.mapping.registration import MatchRows, PosePrior, SolveResult, probe_return_share, solve_pose
 
 __all__ = ["register_to_submap"]
 
@@ -40,24 +44,9 @@ def register_to_submap(
     is still matched.
     """
     source = np.concatenate([corner_lidar, surf_lidar])
-    n_corner = len(corner_lidar)
-
-    def find_matches(q_world: np.ndarray, reach_m: float | None) -> MatchRows:
-        parts = []
-        shifts = []
-        if target.corners is not None and n_corner:
-            parts.append(target.corners.rows(q_world[:n_corner], reach_m))
-            shifts.append(0)
-        if target.surfaces is not None and len(surf_lidar):
-            parts.append(target.surfaces.rows(q_world[n_corner:], reach_m))
-            shifts.append(n_corner)
-        return MatchRows.concatenate(parts, shifts)
-
-    return solve_pose(
-        T_world_lidar_guess,
-        source,
-        find_matches,
-        max_iterations=config.max_iterations if max_iterations is None else max_iterations,
+    find_matches = _matcher(target, len(corner_lidar), len(surf_lidar))
+    solve = functools.partial(
+        solve_pose,
         rematch_every=config.rematch_every,
         min_rows=config.min_rows,
         degeneracy_threshold=config.degeneracy_threshold,
@@ -67,5 +56,76 @@ def register_to_submap(
         level_normal_z=config.level_normal_z,
         prior=prior,
         min_residual_sigma_m=config.min_residual_sigma_m,
+    )
+    result = solve(
+        T_world_lidar_guess,
+        source,
+        find_matches,
+        max_iterations=config.max_iterations if max_iterations is None else max_iterations,
         initial_scale_m=0.0 if prior is None else prior.displacement_sigma_m(_median_range_m(corner_lidar)),
     )
+    if config.probe_shift_m <= 0 or result.iterations == 0:
+        return result
+    stride = config.probe_point_stride
+    probe_corner, probe_surf = corner_lidar[::stride], surf_lidar[::stride]
+    probe = (np.concatenate([probe_corner, probe_surf]), _matcher(target, len(probe_corner), len(probe_surf)))
+    return _solve_probed(result, source, find_matches, probe, config, solve)
+
+
+def _matcher(target: SubmapTarget, n_corner: int, n_surf: int) -> Callable[[np.ndarray, float | None], MatchRows]:
+    """``find_matches`` of :func:`solve_pose` for a source of ``n_corner`` corner points (lines in
+    the submap) followed by ``n_surf`` surface points (planes)."""
+
+    def find_matches(q_world: np.ndarray, reach_m: float | None) -> MatchRows:
+        parts = []
+        shifts = []
+        if target.corners is not None and n_corner:
+            parts.append(target.corners.rows(q_world[:n_corner], reach_m))
+            shifts.append(0)
+        if target.surfaces is not None and n_surf:
+            parts.append(target.surfaces.rows(q_world[n_corner:], reach_m))
+            shifts.append(n_corner)
+        return MatchRows.concatenate(parts, shifts)
+
+    return find_matches
+
+
+def _solve_probed(
+    result: SolveResult,
+    source: np.ndarray,
+    find_matches: Callable[[np.ndarray, float | None], MatchRows],
+    probe: tuple[np.ndarray, Callable[[np.ndarray, float | None], MatchRows]],
+    config: MappingConfig,
+    solve: Callable[..., SolveResult],
+) -> SolveResult:
+    """``result`` checked along the rows' weakest translation (:func:`probe_return_share`). When its
+    rows pull a moved pose back by less than ``probe_observed_share`` of the move, the cost does not
+    hold that direction, whatever the rows' information claims: it is degenerate, so the rows'
+    Jacobian loses it (LOAM's solution remapping, with the basin as the test instead of an
+    eigenvalue) and the pose is solved again from ``result`` (a warm start): with a prior that
+    direction is the prior's, without one it keeps the guess. ``solve``: :func:`solve_pose` with the registration's settings. ``probe``: the
+    (M, 3) source points the probe moves (every ``probe_point_stride``-th corner and surface point)
+    and their matcher."""
+    direction = np.zeros(6)
+    direction[:3] = np.linalg.eigh(result.information[:3, :3])[1][:, 0]
+    share = probe_return_share(
+        result.T_target_source,
+        *probe,
+        config.probe_shift_m * direction,
+        2.0 * config.probe_shift_m,
+        config.robust_scale_m,
+        config.level_normal_z,
+    )
+    if share >= config.probe_observed_share:
+        return dataclasses.replace(result, probe_return_share=share)
+    again = solve(
+        result.T_target_source,
+        source,
+        find_matches,
+        max_iterations=config.probe_iterations,
+        data_scaling=np.eye(6) - np.outer(direction, direction),
+        anneal=False,
+    )
+    if again.iterations == 0:
+        return dataclasses.replace(result, probe_return_share=share)
+    return dataclasses.replace(again, probe_return_share=share, degenerate_axes=max(again.degenerate_axes, 1))
