@@ -18,7 +18,15 @@ from lidar3d.features.records import FeatureCloud, FeatureSet
 from lidar3d.mapping.se3 import exp_apply, invert, log_se3
 from lidar3d.records import Scan
 
-__all__ = ["deskew_features", "deskew_points", "deskew_scan", "share_after_stamp", "sweep_twist", "twist_between"]
+__all__ = [
+    "deskew_features",
+    "deskew_points",
+    "deskew_scan",
+    "share_after_stamp",
+    "sweep_twist",
+    "trajectory_sweep_twist",
+    "twist_between",
+]
 
 
 def twist_between(T_world_a: np.ndarray, T_world_b: np.ndarray, dt_s: float) -> np.ndarray:
@@ -58,6 +66,22 @@ def sweep_twist(share_after: float, twist_before: np.ndarray | None, twist_after
     if chosen is None:
         return np.zeros(6)
     return np.array(chosen, dtype=np.float64)
+
+
+def trajectory_sweep_twist(
+    stamps_ns: np.ndarray, T_world_lidar: np.ndarray, index: int, time_offset_s: np.ndarray
+) -> np.ndarray:
+    """The body twist (6,) to deskew sweep ``index`` of a trajectory with (N,) ``stamps_ns`` and
+    (N,4,4) ``T_world_lidar`` poses at them, its points fired at ``time_offset_s`` (N_points,) after
+    its stamp: :func:`sweep_twist` of the motions from the previous pose and to the next one (zero
+    for a trajectory of one pose)."""
+
+    def between(a: int, b: int) -> np.ndarray | None:
+        if a < 0 or b >= len(stamps_ns):
+            return None
+        return twist_between(T_world_lidar[a], T_world_lidar[b], (stamps_ns[b] - stamps_ns[a]) * 1e-9)
+
+    return sweep_twist(share_after_stamp(time_offset_s), between(index - 1, index), between(index, index + 1))
 
 
 def deskew_scan(scan: Scan, twist: np.ndarray) -> Scan:
