@@ -23,7 +23,7 @@ the same predictions, priors and settled motions as the same points stamped at t
 at the stamp instead ties the estimate to the stamp convention: the pose at a sweep-end stamp is a
 whole sweep away from the points the prediction anchors best, a prediction error at a turn exit
 then reaches the learned twist with the opposite sign, and the deskewing, registration and motion
-loop rings (20 s of ``loop`` stamped at the sweep end: 22.6 mm ATE against 7.7 mm at the start,
+loop rings (20 s of ``loop`` stamped at the sweep end: 22.7 mm ATE against 7.7 mm at the start,
 docs/stages/input.md#per-point-times).
 
 The tracker reads the submap (keyframes are added by the pipeline) and owns everything else it
