@@ -27,7 +27,7 @@ from lidar3d.io.pcd import read_pcd
 from lidar3d.io.run_folder import read_run_folder
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import read_tum
-from lidar3d.mapping.deskew import deskew_scan, twist_between
+from lidar3d.mapping.deskew import deskew_scan, trajectory_sweep_twist
 from lidar3d.mapping.occupancy_grid import (
     GridParams,
     GroundModel,
@@ -177,7 +177,7 @@ class _PlacedScan:
 def _placed_scans(
     inputs: list[Path], config: Config, trajectory: Trajectory, dynamic_keys: np.ndarray, *, segment: bool = False
 ) -> Iterator[_PlacedScan]:
-    """The run's scans that have a pose, deskewed with the motion to the next pose as the map was,
+    """The run's scans that have a pose, deskewed with the motion over each sweep as the map was,
     placed in the world; with ``segment`` their ground cells marked (else ``ground`` is all False)."""
     stamps, poses = trajectory.stamps_ns, trajectory.T_world_lidar
     model = config.sensor.resolved_model
@@ -188,9 +188,7 @@ def _placed_scans(
             i = int(np.searchsorted(stamps, scan.stamp_ns))
             if stamps[i] != scan.stamp_ns:
                 continue
-            a, b = (i, i + 1) if i + 1 < len(stamps) else (max(i - 1, 0), i)
-            twist = twist_between(poses[a], poses[b], (stamps[b] - stamps[a]) * 1e-9) if a != b else np.zeros(6)
-            final = deskew_scan(scan, twist)
+            final = deskew_scan(scan, trajectory_sweep_twist(stamps, poses, i, scan.time_offset_s))
             r = np.linalg.norm(final.points, axis=1)
             keep = (r >= config.sensor.min_range_m) & (r <= model.max_range_m)
             ground = np.zeros(len(scan), bool)

@@ -262,18 +262,35 @@ def test_run_on_times_neither_relative_nor_absolute_is_one_line(drive_start, tmp
     ), lines[0]
 
 
-def test_the_same_points_stamped_at_the_sweep_end_are_as_accurate(drive_start, reference_ate, tmp_path):
-    """The simulated bag rewritten with every stamp moved to its sweep end (stamp + T, times -T..0),
-    scored against the ground truth at the new stamps (interpolated): the same ATE within 10 % on these
-    4 s. Over 20 s of the same drive the sweep-end stamps are 3x worse (22.7 vs 7.7 mm,
-    ``eval/bench_bad_input.py stamps``; docs/stages/input.md#per-point-times): not met there."""
+CORNER_S = 6.0  # 12 m of straight road, a 90-degree corner, and its exit
+
+
+@pytest.fixture(scope="module")
+def corner_drive(tmp_path_factory):
+    """6 s of the ``loop`` town through one corner: the yaw rate rises to 26 deg/s and falls back to
+    zero, where a motion model tied to the stamp convention went wrong."""
+    import dataclasses
+
+    route = ((108.0, 0.0), (120.0, 0.0), (120.0, 80.0))
+    scenario = dataclasses.replace(sim.get_scenario("loop"), name="corner", route_m=route)
+    folder = tmp_path_factory.mktemp("corner")
+    return sim.write_simulation(sim.Simulation(scenario, seed=0, duration_s=CORNER_S), folder / "drive")
+
+
+def test_the_same_points_stamped_at_the_sweep_end_are_as_accurate(corner_drive, tmp_path):
+    """The simulated bag rewritten with every stamp moved to its sweep end (stamp + T, times -T..0,
+    as the stock ROS1 velodyne driver stamps), scored against the ground truth at the new stamps:
+    no less accurate than the sweep-start original (10 % allowed). Before the motion model worked at
+    each sweep's first point time, the sweep-end poses were 1.8x worse here (32.2 vs 17.4 mm), from
+    the corner's exit; docs/stages/input.md#per-point-times has the 20 s figures."""
+    reference, _summary = run_ate(corner_drive.bag, corner_drive, tmp_path / "start")
     shift_ns = round(PERIOD_S * 1e9)
-    with ScanSource(drive_start.bag) as source:
+    with ScanSource(corner_drive.bag) as source:
         moved = [
             Scan(s.stamp_ns + shift_ns, s.points, s.intensity, s.ring, s.time_offset_s - shift_ns * 1e-9)
             for s in source
         ]
     bag = tmp_path / "sweep_end.bag"
     write_cloud_bag(bag, [cloud(s, ("time", "f4", s.time_offset_s)) for s in moved])
-    ate, _summary = run_ate(bag, drive_start, tmp_path / "out")
-    assert ate == pytest.approx(reference_ate, rel=0.10)
+    ate, _summary = run_ate(bag, corner_drive, tmp_path / "end")
+    assert ate <= 1.10 * reference, (ate, reference)

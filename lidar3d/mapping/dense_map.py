@@ -12,7 +12,7 @@ from collections.abc import Iterable
 import numpy as np
 
 from lidar3d.config import Config
-from lidar3d.mapping.deskew import deskew_scan, twist_between
+from lidar3d.mapping.deskew import deskew_scan, trajectory_sweep_twist
 from lidar3d.mapping.free_space import DynamicFilter, FilteredSweep, PlacedSweep, outvoted_voxels
 from lidar3d.mapping.map_pieces import MapAnchor, MapPieces, place_pieces
 from lidar3d.mapping.se3 import transform_points
@@ -132,8 +132,10 @@ class DenseMap:
 def build_dense_map(scans: Iterable[Scan], trajectory: Trajectory, config: Config) -> DenseMap:
     """The map of ``scans`` placed with ``trajectory`` (scans whose stamp it lacks are skipped).
 
-    Each sweep is deskewed with the motion to the next pose (the last with the motion from the
-    previous one), as the pipeline does. Used to rebuild the map after loop closures moved poses.
+    Each sweep is deskewed with the motion between the poses around its points, as the pipeline
+    does (:func:`~lidar3d.mapping.deskew.trajectory_sweep_twist`: the motion to the next pose for a
+    sweep stamped at its start, from the previous pose for one stamped at its end; the first and
+    last sweeps take the one they have). Used to rebuild the map after loop closures moved poses.
     """
     dense_map = DenseMap(config)
     stamps = trajectory.stamps_ns
@@ -142,11 +144,6 @@ def build_dense_map(scans: Iterable[Scan], trajectory: Trajectory, config: Confi
         i = int(np.searchsorted(stamps, scan.stamp_ns))
         if i >= len(stamps) or stamps[i] != scan.stamp_ns:
             continue
-        if len(stamps) < 2:
-            twist = np.zeros(6)
-        else:
-            a, b = (i, i + 1) if i + 1 < len(stamps) else (i - 1, i)
-            twist = twist_between(poses[a], poses[b], (stamps[b] - stamps[a]) * 1e-9)
-        dense_map.add(scan, poses[i], twist)
+        dense_map.add(scan, poses[i], trajectory_sweep_twist(stamps, poses, i, scan.time_offset_s))
     dense_map.finish()
     return dense_map

@@ -10,9 +10,21 @@ Per scan (each pose is the lidar pose at the scan's header stamp, see :mod:`lida
    each direction comes from the scan as far as the scan observes it and from the vehicle model
    as far as it does not, by their information; there is no rule on the kind of scene;
 4. the motion model learns the twist between the previous pose and this one;
-5. the previous sweep is settled: now that the motion over it (the forward difference to this
-   pose) is known, it is deskewed with that motion and re-registered when that moves a point by
-   more than ``redeskew_threshold_m`` compared with the prediction it was registered with.
+5. the previous sweep is settled: now that the motion over it is known (the twist to this pose),
+   it is deskewed with that motion and re-registered when that moves a point by more than
+   ``redeskew_threshold_m`` compared with the prediction it was registered with.
+
+The motion model works at each sweep's *reference instant*, the firing time of its first point,
+whatever instant the header stamp marks: it learns the twist between consecutive poses at those
+instants and predicts the next one there (the prior), and the pose at the stamp is the pose there
+moved with the sweep's motion. A sweep stamped at its start (times 0..T) has its reference at the
+stamp, so nothing moves; one stamped at its end (times -T..0, the stock ROS1 velodyne driver) gets
+the same predictions, priors and settled motions as the same points stamped at the start. Working
+at the stamp instead ties the estimate to the stamp convention: the pose at a sweep-end stamp is a
+whole sweep away from the points the prediction anchors best, a prediction error at a turn exit
+then reaches the learned twist with the opposite sign, and the deskewing, registration and motion
+loop rings (20 s of ``loop`` stamped at the sweep end: 22.7 mm ATE against 7.7 mm at the start,
+docs/stages/input.md#per-point-times).
 
 The tracker reads the submap (keyframes are added by the pipeline) and owns everything else it
 needs: the odometry, the motion model, the latest pose and the sweep waiting to be settled.
@@ -112,11 +124,14 @@ class _Refinement:
 
 @dataclass(frozen=True, slots=True)
 class _Latest:
-    """The latest tracked scan: where the next one starts from."""
+    """The latest tracked scan: where the next one starts from; ``T_world_reference`` is its lidar
+    pose at ``reference_ns``, the sweep's reference instant (:func:`_reference_offset_s`)."""
 
     stamp_ns: int
     T_world_lidar: np.ndarray
     T_world_odom: np.ndarray
+    reference_ns: int
+    T_world_reference: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -128,6 +143,8 @@ class _Unsettled:
     T_world_lidar: np.ndarray
     deskew_twist: np.ndarray
     registered: bool  # the pose came from a registration with no degenerate direction
+    reference_offset_s: float
+    reference_twist: np.ndarray  # moves the pose from the stamp to the reference instant
 
 
 class Tracker:
@@ -156,6 +173,7 @@ class Tracker:
         self._submap = submap
         self._motion = MotionModel()
         self._latest: _Latest | None = None
+        self._motion_known = False  # the motion model has learned a twist
         self._unsettled: _Unsettled | None = None
 
     def track(self, prepared: PreparedScan) -> TrackResult:
@@ -166,6 +184,9 @@ class Tracker:
         clock = StageClock()
         previous = self._latest
         dt_s = (scan.stamp_ns - previous.stamp_ns) * 1e-9 if previous else 0.0
+        offset_s = _reference_offset_s(scan.time_offset_s)
+        reference_ns = scan.stamp_ns + round(offset_s * 1e9)
+        reference_dt_s = (reference_ns - previous.reference_ns) * 1e-9 if previous else 0.0
         predicted = self._motion.prediction()
         with clock("deskew"):
             deskewed = sweep.deskewed(predicted)
@@ -173,23 +194,32 @@ class Tracker:
             step = self._odometry.update(deskewed.features, exp_se3(predicted * dt_s))
         T_world_odom = previous.T_world_odom @ step.T_prev_curr if previous else np.eye(4)
         with clock("mapping"):
-            refinement = self._refine(deskewed, previous, step, dt_s)
+            refinement = self._refine(deskewed, previous, step, reference_dt_s, offset_s, predicted)
         T_world_lidar = refinement.T_world_lidar
+        motion_known = self._motion_known
+        T_world_reference = _moved_by(T_world_lidar, offset_s, predicted)
         well_constrained = refinement.registration is not None and refinement.registration.degenerate_axes == 0
         if well_constrained and refinement.prior is not None:
             self._motion.learn_innovation(refinement.prior, T_world_lidar, self._vehicle.innovation_smoothing)
         if previous is not None:
             self._motion.update(
-                twist_between(previous.T_world_lidar, T_world_lidar, dt_s),
+                twist_between(previous.T_world_reference, T_world_reference, reference_dt_s),
                 well_constrained=well_constrained,
                 heading_observed=refinement.heading_observed,
             )
+            self._motion_known = True
+        # The pose at the reference instant is the stamp's moved with the motion the sweep was
+        # deskewed with; a sweep deskewed before any motion was known (predicted still) takes the
+        # first motion learned once there is one.
+        reference_twist = predicted if motion_known else self._motion.twist.copy()
+        if not motion_known:
+            T_world_reference = _moved_by(T_world_lidar, offset_s, reference_twist)
         settled = None
         if self._unsettled is not None:
             with clock("redeskew"):
                 settled = self._settle(self._unsettled, self._motion.twist)
-        self._unsettled = _Unsettled(scan, sweep, T_world_lidar, predicted, well_constrained)
-        self._latest = _Latest(scan.stamp_ns, T_world_lidar, T_world_odom)
+        self._unsettled = _Unsettled(scan, sweep, T_world_lidar, predicted, well_constrained, offset_s, reference_twist)
+        self._latest = _Latest(scan.stamp_ns, T_world_lidar, T_world_odom, reference_ns, T_world_reference)
         return TrackResult(
             stamp_ns=scan.stamp_ns,
             T_world_lidar=T_world_lidar,
@@ -216,10 +246,24 @@ class Tracker:
         unsettled sweep's, the same scan) by the (4,4) world-frame ``correction``."""
         if self._latest is not None:
             latest = self._latest
-            self._latest = _Latest(latest.stamp_ns, correction @ latest.T_world_lidar, latest.T_world_odom)
+            self._latest = _Latest(
+                latest.stamp_ns,
+                correction @ latest.T_world_lidar,
+                latest.T_world_odom,
+                latest.reference_ns,
+                correction @ latest.T_world_reference,
+            )
         if self._unsettled is not None:
             u = self._unsettled
-            self._unsettled = _Unsettled(u.scan, u.sweep, correction @ u.T_world_lidar, u.deskew_twist, u.registered)
+            self._unsettled = _Unsettled(
+                u.scan,
+                u.sweep,
+                correction @ u.T_world_lidar,
+                u.deskew_twist,
+                u.registered,
+                u.reference_offset_s,
+                u.reference_twist,
+            )
 
     def _register(
         self, deskewed: SweepFeatures, T_world_lidar: np.ndarray, iterations: int, prior: PosePrior | None = None
@@ -233,20 +277,31 @@ class Tracker:
         return register_to_submap(target, corner, surf, T_world_lidar, mp, iterations, prior)
 
     def _refine(
-        self, deskewed: SweepFeatures, previous: _Latest | None, step: OdometryStep, dt_s: float
+        self,
+        deskewed: SweepFeatures,
+        previous: _Latest | None,
+        step: OdometryStep,
+        reference_dt_s: float,
+        offset_s: float,
+        twist: np.ndarray,
     ) -> _Refinement:
-        """Scan-to-submap refinement of a sweep deskewed with the predicted motion.
+        """Scan-to-submap refinement of a sweep deskewed with the predicted motion ``twist``.
 
         Registration starts from the odometry pose and, once the motion model is established,
-        is fused with its vehicle prior. :meth:`_settle` revisits the pose once the motion over
-        the sweep is known.
+        is fused with its vehicle prior: the motion model predicts the pose at the sweep's
+        reference instant (``reference_dt_s`` after the previous one's, ``offset_s`` after the
+        stamp), moved to the stamp with ``twist``. :meth:`_settle` revisits the pose once the
+        motion over the sweep is known.
         """
         if previous is None:
             return _Refinement(np.eye(4), False, None)
         T_world_lidar = previous.T_world_lidar @ step.T_prev_curr
         if not len(self._submap):
             return _Refinement(T_world_lidar, step.used_motion_model, None)
-        prior = self._motion.prior(previous.T_world_lidar, dt_s, self._vehicle) if self._motion.established else None
+        prior = None
+        if self._motion.established:
+            at_reference = self._motion.prior(previous.T_world_reference, reference_dt_s, self._vehicle)
+            prior = _moved_prior(at_reference, -offset_s, twist)
         refined = self._register(deskewed, T_world_lidar, self._mapping.max_iterations, prior)
         if refined.iterations == 0:
             return _Refinement(T_world_lidar, step.used_motion_model, None)
@@ -255,16 +310,58 @@ class Tracker:
 
     def _settle(self, unsettled: _Unsettled, twist: np.ndarray) -> SettledSweep:
         """The unsettled sweep, re-registered with its sweep deskewed by ``twist`` (its forward
-        motion) when that differs enough from the prediction it was registered with. Scans that
-        were not fully constrained keep their pose: their free directions came from the motion
-        model, which the forward difference would only echo."""
+        motion, between the reference instants) when that differs enough from the prediction it
+        was registered with, from its pose at the reference instant. Scans that were not fully
+        constrained keep their pose: their free directions came from the motion model, which the
+        forward difference would only echo."""
         mp = self._mapping
         kept = SettledSweep(unsettled.scan, unsettled.sweep, unsettled.T_world_lidar, twist, revised=False)
         change = twist - unsettled.deskew_twist
         moved_m = max(np.linalg.norm(change[:3]), mp.redeskew_lever_m * np.linalg.norm(change[3:]))
         if not unsettled.registered or moved_m * self._sweep_period_s < mp.redeskew_threshold_m:
             return kept
-        refined = self._register(unsettled.sweep.deskewed(twist), unsettled.T_world_lidar, mp.redeskew_iterations)
+        guess = _kept_at_reference(unsettled, twist)
+        refined = self._register(unsettled.sweep.deskewed(twist), guess, mp.redeskew_iterations)
         if refined.iterations == 0 or refined.degenerate_axes:
             return kept
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
+
+
+def _kept_at_reference(unsettled: _Unsettled, twist: np.ndarray) -> np.ndarray:
+    """The unsettled sweep's pose at its stamp once its motion is known to be ``twist``: its pose
+    at the reference instant (where the prediction anchored the registration) is kept and the
+    stamp's pose moved with ``twist``; the tracked pose itself when the reference is the stamp."""
+    offset_s = unsettled.reference_offset_s
+    at_reference = _moved_by(unsettled.T_world_lidar, offset_s, unsettled.reference_twist)
+    return _moved_by(at_reference, -offset_s, twist)
+
+
+def _reference_offset_s(time_offset_s: np.ndarray) -> float:
+    """The sweep's reference instant (s after its stamp): the time of its first point, whatever
+    instant the stamp marks (0 for a sweep stamped at its start, about -T at its end; 0 for an
+    empty sweep). The motion model works with the poses at these instants."""
+    if len(time_offset_s) == 0:
+        return 0.0
+    return float(np.min(time_offset_s))
+
+
+def _moved_by(T_world_lidar: np.ndarray, dt_s: float, twist: np.ndarray) -> np.ndarray:
+    """The (4,4) pose ``dt_s`` seconds after ``T_world_lidar`` under the constant body ``twist``
+    (6,); the same array when ``dt_s`` is 0."""
+    if dt_s == 0.0:
+        return T_world_lidar
+    return T_world_lidar @ exp_se3(twist * dt_s)
+
+
+def _moved_prior(prior: PosePrior, dt_s: float, twist: np.ndarray) -> PosePrior:
+    """The belief about the pose ``dt_s`` seconds after the one ``prior`` is about, under the constant
+    body ``twist`` (6,): the mean moved, and the information carried over to first order (a world
+    rotation of the first pose by d_theta moves the second's position by d_theta x lever, the lever
+    being the world-frame offset between the two); ``prior`` itself when ``dt_s`` is 0."""
+    if dt_s == 0.0:
+        return prior
+    T_mean = _moved_by(prior.T_target_source, dt_s, twist)
+    lever = T_mean[:3, 3] - prior.T_target_source[:3, 3]
+    back = np.eye(6)  # first-order map from the moved pose's perturbation back to the first's
+    back[:3, 3:] = [[0.0, -lever[2], lever[1]], [lever[2], 0.0, -lever[0]], [-lever[1], lever[0], 0.0]]
+    return PosePrior(T_mean, back.T @ prior.information @ back)
