@@ -24,6 +24,7 @@ import contextlib
 import multiprocessing
 import queue as queue_module
 import signal
+import threading
 import time
 import weakref
 from collections.abc import Callable
@@ -93,6 +94,20 @@ def _stop(process, requests: multiprocessing.Queue) -> None:
     requests.cancel_join_thread()
 
 
+def _start_ignoring_sigint(process) -> None:
+    """Start ``process`` with SIGINT ignored from its first instruction (an ignored signal stays
+    ignored across exec, and Python keeps it so): a Ctrl-C while the child still imports must not
+    kill it, since the parent then still asks it for the map."""
+    if threading.current_thread() is not threading.main_thread():
+        process.start()  # only the main thread may change signal handlers; the child sets its own
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        process.start()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _answer(dense_map: DenseMap, kind: str, args: list) -> MapClouds | None:
     if kind == "clouds":
         return dense_map.clouds()
@@ -134,7 +149,7 @@ class DenseMapProcess:
             name="lidar3d-dense-map",
             daemon=True,
         )
-        self._process.start()
+        _start_ignoring_sigint(self._process)
         self._final: MapClouds | None = None  # the clouds of the finished map, once the child ended
         self._close = weakref.finalize(self, _stop, self._process, self._requests)
 

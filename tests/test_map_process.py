@@ -110,3 +110,19 @@ def test_a_dead_child_is_reported(city):
             child.clouds()
     finally:
         child.close()
+
+
+def test_ctrl_c_does_not_end_the_child_even_while_it_starts(city):
+    import os
+    import signal
+
+    scans, poses = city
+    child = DenseMapProcess(Config(), in_pieces=False)
+    try:
+        os.kill(child._process.pid, signal.SIGINT)  # as a terminal's Ctrl-C reaches the process group
+        child.add(scans[0], poses[0], np.zeros(6))
+        os.kill(child._process.pid, signal.SIGINT)
+        child.finish()
+        assert len(child.clouds().points) > 1000
+    finally:
+        child.close()

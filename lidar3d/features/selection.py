@@ -24,10 +24,10 @@ only, so its picks are exactly those of the same loop in Python).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from lidar3d.config import FeatureConfig
 from lidar3d.features.records import FeatureCloud, FeatureSet, Smoothness
+from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.segment import Segmentation
 
 __all__ = ["select_features", "suppression_spans", "voxel_centroids_per_ring"]
@@ -92,7 +92,7 @@ def _sorted_by_section(candidate, section, key, n_sections, lo, hi):
     return index, lo[index], hi[index], bounds
 
 
-@njit(cache=True, nogil=True)
+@lazy_njit
 def _pick(n_points, edges, edge_lo, edge_hi, edge_bounds, flats, flat_lo, flat_hi, flat_bounds, quota):
     """The greedy pick, section by section: edges first, then flats; each pick marks its span as
     picked. ``quota``: (sharp, less sharp, flat) per section. Returns the indices of the sharp,

@@ -19,10 +19,10 @@ least ``min_cluster_rings`` rows (IP:430-450); the others are outliers.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
 from lidar3d.config import SegmentationConfig
 from lidar3d.errors import ConfigError
+from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.range_image import RangeImage
 
 __all__ = ["cluster_cells", "joins_by_beta"]
@@ -39,36 +39,40 @@ def joins_by_beta(near_m: np.ndarray, far_m: np.ndarray, alpha_rad: np.ndarray |
         return near_m * np.sin(alpha_rad) > tan_theta * (far_m - near_m * np.cos(alpha_rad))
 
 
-@njit(cache=True, nogil=True)
-def _root(parent: np.ndarray, node: int) -> int:
-    while parent[node] != node:
-        parent[node] = parent[parent[node]]  # path halving
-        node = parent[node]
-    return node
-
-
-@njit(cache=True, nogil=True)
+@lazy_njit
 def _components(cells: np.ndarray, horizontal: np.ndarray, vertical: np.ndarray) -> tuple[np.ndarray, int]:
-    """Connected components of the candidate cells; ``cells``: (K,) flat indices of the candidate
-    cells in row-major order; ``horizontal`` (R, C): a cell joins its right neighbour (wrapping);
-    ``vertical`` (R-1, C): a cell joins the one above. Returns (K,) int64 component of each cell,
-    numbered 0, 1, ... in row-major order of each component's first cell, and their number."""
+    """Connected components of the candidate cells, by union-find; ``cells``: (K,) flat indices of
+    the candidate cells in row-major order; ``horizontal`` (R, C): a cell joins its right neighbour
+    (wrapping); ``vertical`` (R-1, C): a cell joins the one above. Returns (K,) int64 component of
+    each cell, numbered 0, 1, ... in row-major order of each component's first cell, and their number.
+    A component's root is its first cell (the smaller root becomes the parent)."""
     n_rows, n_columns = horizontal.shape
     parent = np.arange(n_rows * n_columns)
     for r in range(n_rows):
         for c in range(n_columns):
             node = r * n_columns + c
-            if horizontal[r, c]:
-                a, b = _root(parent, node), _root(parent, r * n_columns + (c + 1) % n_columns)
-                parent[max(a, b)] = min(a, b)  # a component's root is its first cell
-            if r + 1 < n_rows and vertical[r, c]:
-                a, b = _root(parent, node), _root(parent, node + n_columns)
+            for direction in range(2):  # 0: the right neighbour, 1: the one above
+                if direction == 0 and horizontal[r, c]:
+                    other = r * n_columns + (c + 1) % n_columns
+                elif direction == 1 and r + 1 < n_rows and vertical[r, c]:
+                    other = node + n_columns
+                else:
+                    continue
+                a, b = node, other
+                while parent[a] != a:
+                    parent[a] = parent[parent[a]]  # path halving
+                    a = parent[a]
+                while parent[b] != b:
+                    parent[b] = parent[parent[b]]
+                    b = parent[b]
                 parent[max(a, b)] = min(a, b)
     dense_of_root = np.full(n_rows * n_columns, -1, np.int64)
     component = np.empty(cells.size, np.int64)
     n_components = 0
     for k in range(cells.size):
-        root = _root(parent, cells[k])
+        root = cells[k]
+        while parent[root] != root:
+            root = parent[root]
         if dense_of_root[root] < 0:
             dense_of_root[root] = n_components
             n_components += 1
