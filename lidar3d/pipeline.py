@@ -35,6 +35,7 @@ from lidar3d.features.frontend import STAGES as FRONT_END_STAGES
 from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.records import LoopCandidate
+from lidar3d.map_process import DenseMapProcess
 from lidar3d.mapping.dense_map import DenseMap
 from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
@@ -130,9 +131,10 @@ class SlamResult:
 
 class SlamPipeline:
     """Call :meth:`process` per scan, :meth:`finish` at the end of the input, then :meth:`result`.
-    ``piece_store``: where the map's pieces wait when loop closure is on (default: in memory)."""
+    ``piece_store``: where the map's pieces wait when loop closure is on (default: in memory);
+    ``map_in_process``: the same map built in a child process (:mod:`lidar3d.map_process`)."""
 
-    def __init__(self, config: Config, piece_store: PieceStore | None = None) -> None:
+    def __init__(self, config: Config, piece_store: PieceStore | None = None, *, map_in_process: bool = False) -> None:
         self.config = config
         mp = config.mapping
         self.submap = Submap(
@@ -154,7 +156,7 @@ class SlamPipeline:
         self.health = HealthMonitor(config.health)
         self._step_uncertainty = StepUncertainty(config.motion)
         self.stats = RunStatistics()
-        self._map = DenseMap(config, MapPieces(mp.map_voxel_m, piece_store) if self.loop is not None else None)
+        self._map = _dense_map(config, self.loop is not None, piece_store, self.stats if map_in_process else None)
         self._estimates: list[ScanEstimate] = []
         self._n_seen = 0
 
@@ -233,6 +235,8 @@ class SlamPipeline:
             t0 = time.perf_counter()
             self._map.place_again(self.submap.poses)
             self.stats.map_rebuild_s = round(time.perf_counter() - t0, 3)
+        if isinstance(self._map, DenseMapProcess):
+            self._map.end()  # the map is final: its process ends
 
     def result(self, partial: bool = False) -> SlamResult:
         """A snapshot of the result so far; changes nothing (``partial`` marks an unfinished run).
@@ -243,8 +247,7 @@ class SlamPipeline:
         """
         keyframes = self.submap.keyframes
         odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)
-        map_points, map_intensity = self._map.static.points_and_intensity()
-        dynamic_points, dynamic_intensity = self._map.dynamic.points_and_intensity()
+        clouds = self._map.clouds()
         trajectory = self._trajectory()
         scan_indices = np.array([e.scan_index for e in self._estimates], dtype=np.int64)
         health = tuple(e.health for e in self._estimates)
@@ -257,10 +260,10 @@ class SlamPipeline:
             ),
             keyframe_scan_indices=np.array([kf.scan_index for kf in keyframes], dtype=np.int64),
             scan_indices=scan_indices,
-            map_points=map_points,
-            map_intensity=map_intensity,
-            dynamic_points=dynamic_points,
-            dynamic_intensity=dynamic_intensity,
+            map_points=clouds.points,
+            map_intensity=clouds.intensity,
+            dynamic_points=clouds.dynamic_points,
+            dynamic_intensity=clouds.dynamic_intensity,
             removes_dynamic=self._map.removes_dynamic,
             timings_ms=self.stats.timings_ms(),
             loop_ms_total=self.stats.loop_ms,
@@ -326,6 +329,17 @@ class SlamPipeline:
         )
         self._estimates = [dataclasses.replace(e, T_world_lidar=T) for e, T in zip(self._estimates, corrected)]
         self.keyframe_selector.anchor(update.poses[-1])
+
+
+def _dense_map(
+    config: Config, in_pieces: bool, piece_store: PieceStore | None, process_stats: RunStatistics | None
+) -> DenseMap | DenseMapProcess:
+    """The pipeline's dense map: here, or in a child process timing each sweep into ``process_stats``."""
+    if process_stats is None:
+        return DenseMap(config, MapPieces(config.mapping.map_voxel_m, piece_store) if in_pieces else None)
+    return DenseMapProcess(
+        config, in_pieces=in_pieces, on_sweep_ms=lambda ms: process_stats.add_timings({"dense_map": ms})
+    )
 
 
 def run_slam(scans: Iterable[Scan], config: Config | None = None) -> SlamResult:

@@ -62,6 +62,8 @@ __all__ = ["RunOutcome", "run_bag"]
 
 log = logging.getLogger(__name__)
 
+TOP_VIEW_NAME = "trajectory_loops.png"
+
 
 @dataclass(frozen=True, slots=True)
 class RunOutcome:
@@ -124,7 +126,8 @@ class _RunPublisher:
 
     The map is written less often than the trajectories; between its publications the set keeps
     the last ``map.pcd`` (and ``dynamic.pcd``), and the summary's ``map_points`` (``dynamic_points``)
-    counts the points of that file.
+    counts the points of that file. The loop closures' top view (``trajectory_loops.png``, a
+    matplotlib drawing of 0.1-0.3 s) is drawn with the map too, and kept between.
     """
 
     def __init__(self, out_dir: Path, config: Config) -> None:
@@ -165,6 +168,8 @@ class _RunPublisher:
             keep += ["dynamic.pcd"] if previous_dynamic is not None else []
             dynamic_rows = previous_dynamic.rows if previous_dynamic is not None else None
             summary = dataclasses.replace(summary, dynamic_points=dynamic_rows)
+            previous_view = self.summary.output(TOP_VIEW_NAME) if self.summary is not None else None
+            keep += [TOP_VIEW_NAME] if previous_view is not None and result.pose_graph_g2o else []
 
         def write(staging: Path) -> None:
             if self.summary is None:
@@ -183,7 +188,7 @@ class _RunPublisher:
                     dynamic_intensity = result.dynamic_intensity.astype(np.float32)
                     write_pcd(staging / "dynamic.pcd", result.dynamic_points, intensity=dynamic_intensity)
             if result.pose_graph_g2o:
-                _write_loop_outputs(staging, result)
+                _write_loop_outputs(staging, result, top_view=with_map)
 
         self.summary = publish_set(self.out_dir, summary, write, rows=rows, keep=keep)
         return self.summary
@@ -203,14 +208,16 @@ class _RunPublisher:
         return self.summary
 
 
-def _write_loop_outputs(out_dir: Path, result: SlamResult) -> None:
-    """``loops.csv`` (every candidate), ``pose_graph.g2o`` and the top view with closures."""
+def _write_loop_outputs(out_dir: Path, result: SlamResult, *, top_view: bool) -> None:
+    """``loops.csv`` (every candidate), ``pose_graph.g2o`` and (``top_view``) the top view with closures."""
     from lidar3d.export.loop_report import write_loops_csv, write_pose_graph_g2o, write_top_view
 
     write_loops_csv(out_dir / "loops.csv", result.loop_candidates)
     write_pose_graph_g2o(out_dir / "pose_graph.g2o", result.pose_graph_g2o)
+    if not top_view:
+        return
     write_top_view(
-        out_dir / "trajectory_loops.png",
+        out_dir / TOP_VIEW_NAME,
         result.trajectory.positions_m,
         result.keyframes.positions_m,
         [c for c in result.loop_candidates if c.accepted],
@@ -242,8 +249,9 @@ def run_bag(
         extrinsics: lidar-to-IMU extrinsic file for that evaluation.
         on_scan: called as ``on_scan(done, total)`` after each scan (progress display).
         on_health: called with the health of each scan that got a pose, before ``on_scan``.
-        prefetch: read the bag and run the front end in a second process, a few scans ahead
-            (uses a second core; turn off when several runs share the cores, as in a batch).
+        prefetch: read the bag and run the front end in a second process, a few scans ahead, and
+            build the dense map in a third (:mod:`lidar3d.map_process`): uses the other cores;
+            turn off when several runs share the cores, as in a batch. The outputs are the same.
         overwrite: replace the outputs of an earlier run in ``out_dir`` (they stay until this run
             publishes its first set, which removes every file it does not hold).
         gnss_factors: fuse the SPAN log's good epochs into the keyframe graph after the lidar run
@@ -266,9 +274,10 @@ def run_bag(
     _check_output_folder(out, overwrite)
     config = input_config(paths, config)  # raw packets: the sensor model and rate they show
 
-    # With loop closure the map is also kept in pieces (to move with the keyframes), spilled to disk.
-    piece_store = SpilledPieceStore() if config.loop.enabled else None
-    pipeline = SlamPipeline(config, piece_store)
+    # With loop closure the map is also kept in pieces (to move with the keyframes), spilled to disk
+    # (by the map's own process when it has one).
+    piece_store = SpilledPieceStore() if config.loop.enabled and not prefetch else None
+    pipeline = SlamPipeline(config, piece_store, map_in_process=prefetch)
     publisher = _RunPublisher(out, config)
     read_ms: list[float] = []
     t_start = time.perf_counter()

@@ -9,7 +9,7 @@ Layout of ``summary.json`` (keys in this order; optional keys are left out when 
 
     lidar3d_version, inputs, topic, partial, scans, keyframes, length_m, duration_s, runtime_s,
     scans_per_s, stage_ms_median {read, projection, ground, clustering, smoothness, selection,
-    deskew, odometry, mapping, map_update[, redeskew]}, map_points, loop_closures, loop_candidates,
+    deskew, odometry, mapping, map_update[, redeskew, dense_map]}, map_points, loop_closures, loop_candidates,
     loop_ms_total, counts {scans[, redeskewed_scans, motion_model_scans, degenerate_scans,
     loop_closures, dropped_duplicate_stamps, dropped_out_of_order_stamps]}, warnings, pose_stamp
     [, health {ok_scans, degraded_scans, lost_scans, ok_fraction, lost_m, lost_stretches [{first_scan,
@@ -165,6 +165,8 @@ class StageMedians:
         mapping: scan-to-submap refinement.
         map_update: publishing the scan into the submap and the dense map.
         redeskew: re-registration of the previous scan with its forward motion (None: never ran).
+        dense_map: adding a settled sweep to the dense map (deskewing, the dynamic-object filter,
+            the voxel maps), in the map's worker thread beside the tracking (None: not recorded).
     """
 
     read: float
@@ -178,6 +180,7 @@ class StageMedians:
     mapping: float
     map_update: float
     redeskew: float | None = None
+    dense_map: float | None = None
 
     def as_dict(self) -> dict[str, float]:
         """Stage name -> median ms, as ``summary.json`` holds it (stages that never ran left out)."""
@@ -186,8 +189,11 @@ class StageMedians:
 
     @classmethod
     def _parse(cls, obj: _JsonObject) -> StageMedians:
-        required = {field.name: obj.number(field.name) for field in dataclasses.fields(cls) if field.name != "redeskew"}
-        parsed = cls(**required, redeskew=obj.optional_number("redeskew"))
+        optional = ("redeskew", "dense_map")
+        required = {
+            field.name: obj.number(field.name) for field in dataclasses.fields(cls) if field.name not in optional
+        }
+        parsed = cls(**required, redeskew=obj.optional_number("redeskew"), dense_map=obj.optional_number("dense_map"))
         obj.finish()
         return parsed
 

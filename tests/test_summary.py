@@ -74,6 +74,7 @@ def example_summary(**changes) -> RunSummary:
             mapping=70.647,
             map_update=17.915,
             redeskew=0.055,
+            dense_map=21.004,
         ),
         map_points=155082,
         loop_closures=2,

@@ -124,6 +124,35 @@ def test_pcd_binary_with_intensity_reads_back_in_open3d(tmp_path):
     assert [p.name for p in tmp_path.iterdir()] == ["map.pcd"]
 
 
+def _open3d_pcd_bytes(path, points, **fields) -> bytes:
+    """The PCD Open3D's tensor API writes (what ``write_pcd`` wrote through it before)."""
+    import open3d as o3d
+
+    cloud = o3d.t.geometry.PointCloud()
+    cloud.point.positions = o3d.core.Tensor(np.ascontiguousarray(points, dtype=np.float32))
+    for name, values in fields.items():
+        dtype = np.int32 if np.issubdtype(np.asarray(values).dtype, np.integer) else np.float32
+        cloud.point[name] = o3d.core.Tensor(np.ascontiguousarray(np.asarray(values).reshape(-1, 1), dtype=dtype))
+    assert o3d.t.io.write_point_cloud(str(path), cloud, write_ascii=False, compressed=False)
+    return path.read_bytes()
+
+
+@pytest.mark.parametrize(
+    "fields",
+    [
+        {},
+        {"intensity": "float64"},
+        {"zeta": "float32", "label": "int64", "alpha": "uint16"},  # Open3D orders the extra fields by name
+    ],
+)
+def test_pcd_bytes_are_those_open3d_writes(tmp_path, fields):
+    rng = np.random.default_rng(2)
+    points = rng.normal(size=(700, 6))[:, ::2] * 300.0  # float64, not contiguous
+    values = {name: (rng.normal(size=700) * 100).astype(dtype) for name, dtype in fields.items()}
+    write_pcd(tmp_path / "ours.pcd", points, **values)
+    assert (tmp_path / "ours.pcd").read_bytes() == _open3d_pcd_bytes(tmp_path / "open3d.pcd", points, **values)
+
+
 def test_pcd_rejects_bad_shapes(tmp_path):
     with pytest.raises(ValueError, match=r"points must be \(N, 3\)"):
         write_pcd(tmp_path / "a.pcd", np.zeros((4, 2)))

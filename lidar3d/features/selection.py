@@ -17,7 +17,8 @@ pickable span), in ring and section order:
 Everything but the greedy pick is array work: candidates are filtered and sorted once for the whole
 scan, the suppression span of every point is precomputed, and the sequential pick (which must stay
 sequential: each pick changes what later candidates may do) walks only the sorted candidates of each
-section with a byte array for the picked flags, stopping at the section's quota.
+section, stopping at the section's quota, in a compiled kernel (numba, cached on disk: integer work
+only, so its picks are exactly those of the same loop in Python).
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import numpy as np
 
 from lidar3d.config import FeatureConfig
 from lidar3d.features.records import FeatureCloud, FeatureSet, Smoothness
+from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.segment import Segmentation
 
 __all__ = ["select_features", "suppression_spans", "voxel_centroids_per_ring"]
@@ -87,7 +89,47 @@ def _sorted_by_section(candidate, section, key, n_sections, lo, hi):
     order = np.lexsort((key[index], section[index]))
     index = index[order]
     bounds = np.searchsorted(section[index], np.arange(n_sections + 1))
-    return index.tolist(), lo[index].tolist(), hi[index].tolist(), bounds.tolist()
+    return index, lo[index], hi[index], bounds
+
+
+@lazy_njit
+def _pick(n_points, edges, edge_lo, edge_hi, edge_bounds, flats, flat_lo, flat_hi, flat_bounds, quota):
+    """The greedy pick, section by section: edges first, then flats; each pick marks its span as
+    picked. ``quota``: (sharp, less sharp, flat) per section. Returns the indices of the sharp,
+    less-sharp and flat picks, in pick order."""
+    n_sharp, n_less_sharp, n_flat = quota[0], quota[1], quota[2]
+    picked = np.zeros(n_points, np.bool_)
+    sharp = np.empty(edges.size, np.int64)
+    less_sharp = np.empty(edges.size, np.int64)
+    flat = np.empty(flats.size, np.int64)
+    n_sharp_picked = n_less_sharp_picked = n_flat_picked = 0
+    for s in range(edge_bounds.size - 1):
+        count = 0
+        for k in range(edge_bounds[s], edge_bounds[s + 1]):
+            if count >= n_less_sharp:
+                break
+            i = edges[k]
+            if picked[i]:
+                continue
+            count += 1
+            if count <= n_sharp:
+                sharp[n_sharp_picked] = i
+                n_sharp_picked += 1
+            less_sharp[n_less_sharp_picked] = i
+            n_less_sharp_picked += 1
+            picked[edge_lo[k] : edge_hi[k]] = True
+        count = 0
+        for k in range(flat_bounds[s], flat_bounds[s + 1]):
+            if count >= n_flat:
+                break
+            i = flats[k]
+            if picked[i]:
+                continue
+            count += 1
+            flat[n_flat_picked] = i
+            n_flat_picked += 1
+            picked[flat_lo[k] : flat_hi[k]] = True
+    return sharp[:n_sharp_picked], less_sharp[:n_less_sharp_picked], flat[:n_flat_picked]
 
 
 def select_features(segmentation: Segmentation, smoothness: Smoothness, config: FeatureConfig) -> FeatureSet:
@@ -113,35 +155,10 @@ def select_features(segmentation: Segmentation, smoothness: Smoothness, config: 
     edges, edge_lo, edge_hi, edge_bounds = _sorted_by_section(edge_candidate, section, -curvature, n_sections, lo, hi)
     flats, flat_lo, flat_hi, flat_bounds = _sorted_by_section(flat_candidate, section, curvature, n_sections, lo, hi)
 
-    picked = bytearray(n)
-    ones = b"\x01" * (2 * config.curvature_half_window + 1)
-    sharp: list[int] = []
-    less_sharp: list[int] = []
-    flat: list[int] = []
-    n_sharp, n_less_sharp, n_flat = config.sharp_per_section, config.less_sharp_per_section, config.flat_per_section
-    for s in range(n_sections):
-        count = 0
-        for k in range(edge_bounds[s], edge_bounds[s + 1]):
-            if count >= n_less_sharp:
-                break
-            i = edges[k]
-            if picked[i]:
-                continue
-            count += 1
-            if count <= n_sharp:
-                sharp.append(i)
-            less_sharp.append(i)
-            picked[edge_lo[k] : edge_hi[k]] = ones[: edge_hi[k] - edge_lo[k]]
-        count = 0
-        for k in range(flat_bounds[s], flat_bounds[s + 1]):
-            if count >= n_flat:
-                break
-            i = flats[k]
-            if picked[i]:
-                continue
-            count += 1
-            flat.append(i)
-            picked[flat_lo[k] : flat_hi[k]] = ones[: flat_hi[k] - flat_lo[k]]
+    quota = np.array([config.sharp_per_section, config.less_sharp_per_section, config.flat_per_section], np.int64)
+    sharp, less_sharp, flat = _pick(
+        n, edges, edge_lo, edge_hi, edge_bounds, flats, flat_lo, flat_hi, flat_bounds, quota
+    )
 
     time_offset_s = segmentation.time_offset_s
 
@@ -152,7 +169,7 @@ def select_features(segmentation: Segmentation, smoothness: Smoothness, config: 
         )
 
     less_flat_mask = smoothness.in_section.copy()
-    less_flat_mask[np.asarray(less_sharp, dtype=np.int64)] = False
+    less_flat_mask[less_sharp] = False
     less_flat = voxel_centroids_per_ring(
         segmentation.points[less_flat_mask],
         segmentation.row[less_flat_mask],

@@ -8,6 +8,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from collections.abc import Iterable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -19,9 +20,26 @@ from lidar3d.mapping.se3 import transform_points
 from lidar3d.mapping.voxel import VoxelMap, group_by_voxel
 from lidar3d.records import Scan, Trajectory
 
-__all__ = ["DenseMap", "build_dense_map"]
+__all__ = ["DenseMap", "MapClouds", "build_dense_map"]
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class MapClouds:
+    """The dense map's two voxel maps as clouds, world frame.
+
+    Attributes:
+        points: (M,3) float64 static map, one point (the voxel mean) per voxel.
+        intensity: (M,) float64 mean intensity per voxel.
+        dynamic_points: (D,3) float64 the removed moving objects, per voxel.
+        dynamic_intensity: (D,) float64 their mean intensity.
+    """
+
+    points: np.ndarray
+    intensity: np.ndarray
+    dynamic_points: np.ndarray
+    dynamic_intensity: np.ndarray
 
 
 class DenseMap:
@@ -86,6 +104,12 @@ class DenseMap:
             self._vote()
         if self._pieces is not None:
             self._pieces.close()
+
+    def clouds(self) -> MapClouds:
+        """Both maps as they stand, as clouds."""
+        points, intensity = self.static.points_and_intensity()
+        dynamic_points, dynamic_intensity = self.dynamic.points_and_intensity()
+        return MapClouds(points, intensity, dynamic_points, dynamic_intensity)
 
     def place_again(self, keyframe_poses: np.ndarray) -> None:
         """After :meth:`finish`: place the map again from its pieces, each moved with its keyframe's

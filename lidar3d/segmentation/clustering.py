@@ -10,7 +10,8 @@ with alpha the angle between the two beams: the column width for horizontal neig
 difference of the two rows' beam elevations for vertical ones (LeGO-LOAM uses the uniform 2 degree
 spacing; the table handles non-uniform sensors such as the VLP-32C). LeGO-LOAM grows each cluster by
 breadth-first search; here the joining test runs on the whole image at once and the clusters are the
-connected components of the resulting graph (``scipy.sparse.csgraph``). A cluster is kept when it has
+connected components of the resulting graph, found by union-find in a compiled kernel (numba, cached
+on disk; integer work only). A cluster is kept when it has
 at least ``min_cluster_points`` points, or at least ``min_cluster_points_multi_ring`` points on at
 least ``min_cluster_rings`` rows (IP:430-450); the others are outliers.
 """
@@ -18,11 +19,10 @@ least ``min_cluster_rings`` rows (IP:430-450); the others are outliers.
 from __future__ import annotations
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 
 from lidar3d.config import SegmentationConfig
 from lidar3d.errors import ConfigError
+from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.range_image import RangeImage
 
 __all__ = ["cluster_cells", "joins_by_beta"]
@@ -37,6 +37,47 @@ def joins_by_beta(near_m: np.ndarray, far_m: np.ndarray, alpha_rad: np.ndarray |
     """
     with np.errstate(invalid="ignore"):
         return near_m * np.sin(alpha_rad) > tan_theta * (far_m - near_m * np.cos(alpha_rad))
+
+
+@lazy_njit
+def _components(cells: np.ndarray, horizontal: np.ndarray, vertical: np.ndarray) -> tuple[np.ndarray, int]:
+    """Connected components of the candidate cells, by union-find; ``cells``: (K,) flat indices of
+    the candidate cells in row-major order; ``horizontal`` (R, C): a cell joins its right neighbour
+    (wrapping); ``vertical`` (R-1, C): a cell joins the one above. Returns (K,) int64 component of
+    each cell, numbered 0, 1, ... in row-major order of each component's first cell, and their number.
+    A component's root is its first cell (the smaller root becomes the parent)."""
+    n_rows, n_columns = horizontal.shape
+    parent = np.arange(n_rows * n_columns)
+    for r in range(n_rows):
+        for c in range(n_columns):
+            node = r * n_columns + c
+            for direction in range(2):  # 0: the right neighbour, 1: the one above
+                if direction == 0 and horizontal[r, c]:
+                    other = r * n_columns + (c + 1) % n_columns
+                elif direction == 1 and r + 1 < n_rows and vertical[r, c]:
+                    other = node + n_columns
+                else:
+                    continue
+                a, b = node, other
+                while parent[a] != a:
+                    parent[a] = parent[parent[a]]  # path halving
+                    a = parent[a]
+                while parent[b] != b:
+                    parent[b] = parent[parent[b]]
+                    b = parent[b]
+                parent[max(a, b)] = min(a, b)
+    dense_of_root = np.full(n_rows * n_columns, -1, np.int64)
+    component = np.empty(cells.size, np.int64)
+    n_components = 0
+    for k in range(cells.size):
+        root = cells[k]
+        while parent[root] != root:
+            root = parent[root]
+        if dense_of_root[root] < 0:
+            dense_of_root[root] = n_components
+            n_components += 1
+        component[k] = dense_of_root[root]
+    return component, n_components
 
 
 def cluster_cells(
@@ -55,7 +96,6 @@ def cluster_cells(
     candidate = image.occupied & ~ground_mask
     range_m = np.where(candidate, image.range_m, np.nan)
     tan_theta = np.tan(np.deg2rad(config.cluster_angle_deg))
-    node = np.arange(n_rows * n_columns).reshape(n_rows, n_columns)
 
     right_m = np.roll(range_m, -1, axis=1)  # horizontal neighbour, wrapping at the last column
     horizontal = joins_by_beta(
@@ -68,25 +108,14 @@ def cluster_cells(
     horizontal &= candidate & np.roll(candidate, -1, axis=1)
     vertical &= candidate[:-1] & candidate[1:]
 
-    source = np.concatenate([node[horizontal], node[:-1][vertical]])
-    target = np.concatenate([np.roll(node, -1, axis=1)[horizontal], node[1:][vertical]])
-    n_nodes = n_rows * n_columns
-    graph = csr_matrix((np.ones(source.size, dtype=np.int8), (source, target)), shape=(n_nodes, n_nodes))
-    _, component = connected_components(graph, directed=False)
-
     cells = np.flatnonzero(candidate.ravel())
+    n_nodes = n_rows * n_columns
     label = np.full(n_nodes, -1, dtype=np.int32)
     outlier = np.zeros(n_nodes, dtype=bool)
     if cells.size == 0:
         return label.reshape(n_rows, n_columns), outlier.reshape(n_rows, n_columns)
-    # renumber the components of candidate cells densely, in row-major order of first appearance
-    # (connected_components numbers components by their lowest node, i.e. row-major first cell)
-    cell_component = component[cells]
-    present = np.zeros(n_nodes, dtype=bool)
-    present[cell_component] = True
-    dense_of_component = np.cumsum(present) - 1
-    dense = dense_of_component[cell_component]
-    n_clusters = int(dense_of_component[-1]) + 1
+    # components of candidate cells numbered densely, in row-major order of their first cell
+    dense, n_clusters = _components(cells, horizontal, vertical)
     size = np.bincount(dense, minlength=n_clusters)
     touched = np.zeros((n_clusters, n_rows), dtype=bool)
     touched[dense, cells // n_columns] = True
