@@ -103,9 +103,9 @@ def _solve_probed(
     hold that direction, whatever the rows' information claims: it is degenerate, so the rows'
     Jacobian loses it (LOAM's solution remapping, with the basin as the test instead of an
     eigenvalue) and the pose is solved again from ``result`` (a warm start): with a prior that
-    direction is the prior's, without one it keeps the guess. ``solve``: :func:`solve_pose` with the registration's settings. ``probe``: the
-    (M, 3) source points the probe moves (every ``probe_point_stride``-th corner and surface point)
-    and their matcher."""
+    direction is the prior's, without one it keeps the guess. ``solve``: :func:`solve_pose` with
+    the registration's settings. ``probe``: the (M, 3) source points the probe moves (every
+    ``probe_point_stride``-th corner and surface point) and their matcher."""
     direction = np.zeros(6)
     direction[:3] = np.linalg.eigh(result.information[:3, :3])[1][:, 0]
     share = probe_return_share(
