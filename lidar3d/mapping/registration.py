@@ -351,21 +351,28 @@ def _wrapped_difference(x: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return d
 
 
+def _jacobian(normal: np.ndarray, points: np.ndarray, dR: np.ndarray, level_normal_z: float) -> np.ndarray:
+    """(K, 6) derivatives of the rows ``normal . (R p + t)`` over ``[tx, ty, tz, roll, pitch, yaw]``
+    for (K, 3) unit normals and source points, with ``dR`` (3, 3, 3) from
+    :func:`_rotation_and_derivatives`; rows as level as ``level_normal_z`` (> 0) inform only z,
+    roll and pitch (see :func:`solve_pose`)."""
+    J = np.empty((len(normal), 6))
+    J[:, :3] = normal
+    for a in range(3):
+        J[:, 3 + a] = np.einsum("ij,ij->i", normal, points @ dR[a].T)
+    if level_normal_z > 0:
+        level = np.abs(normal[:, 2]) >= level_normal_z
+        J[np.ix_(level, (0, 1, 5))] = 0.0
+    return J
+
+
 def _rows_along(matches: MatchRows, source: np.ndarray, x: np.ndarray, step: np.ndarray, level_normal_z: float):
     """(q, along) at the pose ``x``: the matched source points in the target frame (K, 3) and each
     row's derivative along the parameter step ``step`` (6,) (the Jacobian of :func:`solve_pose`,
     level rows informing only z, roll and pitch)."""
     R, dR = _rotation_and_derivatives(x)
     p = source[matches.source_index]
-    n = matches.normal
-    q = p @ R.T + x[:3]
-    J = np.empty((len(matches), 6))
-    J[:, :3] = n
-    for a in range(3):
-        J[:, 3 + a] = np.einsum("ij,ij->i", n, p @ dR[a].T)
-    if level_normal_z > 0:
-        J[np.ix_(np.abs(n[:, 2]) >= level_normal_z, (0, 1, 5))] = 0.0
-    return q, J @ step
+    return p @ R.T + x[:3], _jacobian(matches.normal, p, dR, level_normal_z) @ step
 
 
 def probe_return_share(
@@ -536,14 +543,7 @@ def solve_pose(
                 return SolveResult(T_init.copy(), 0, False, n_rows, 0, min_eig)
             break
         n = matches.normal[use]
-        J = np.empty((n_rows, 6))
-        J[:, :3] = n
-        pu = p[use]
-        for a in range(3):
-            J[:, 3 + a] = np.einsum("ij,ij->i", n, pu @ dR[a].T)
-        if level_normal_z > 0:
-            level = np.abs(n[:, 2]) >= level_normal_z
-            J[np.ix_(level, (0, 1, 5))] = 0.0
+        J = _jacobian(n, p[use], dR, level_normal_z)
         w = weight[use]
         Jf = J[:, free] * w[:, None]
         if data_scaling is not None:
