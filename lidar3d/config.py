@@ -347,6 +347,12 @@ class OdometryConfig:
     )
     min_previous_edges: int = _key(10, _closed(0, 1_000_000), "the previous scan needs this many edges ...")
     min_previous_planes: int = _key(100, _closed(0, 1_000_000), "... and this many planar points")
+    fuse_heading: bool = _key(
+        False, None, "fuse each step's yaw into the scan-to-submap registration (experimental, see the docs)"
+    )
+    heading_shortfall: float = _key(
+        2.0, _closed(0.0, 100.0), "its yaw travel from the guess times this is added to a step's yaw sigma"
+    )
 
 
 @dataclass(frozen=True, slots=True)
@@ -601,6 +607,8 @@ class MotionConfig:
     tilt_accel_rad_s2: float = _key(0.5, _positive(1000.0, "rad/s^2"), "roll and pitch rate change (vibration)")
     min_sigma_m: float = _key(0.002, _positive(1.0, "m"), "translation sigma of one step is at least this")
     min_sigma_deg: float = _key(0.02, _positive(10.0, "deg"), "rotation sigma of one step is at least this")
+    cold_start_sigma_m: float = _key(1.0, _positive(1000.0, "m"), "before the model is established: guess sigma ...")
+    cold_start_sigma_deg: float = _key(5.0, _positive(180.0, "deg"), "... and rotation sigma beside the odometry yaw")
     innovation_smoothing: float = _key(
         0.2, _FRACTION, "weight of the newest prediction error in the running mean that widens the prior"
     )

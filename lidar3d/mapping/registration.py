@@ -97,6 +97,17 @@ class PosePrior:
     T_target_source: np.ndarray
     information: np.ndarray
 
+    def fused_with(self, other: PosePrior) -> PosePrior:
+        """The product of this Gaussian and ``other`` (an independent belief about the same pose):
+        informations added, the mean where each moves it by its information (to first order, in
+        the parameterisation above, the yaw difference wrapped; a direction neither informs keeps
+        this belief's mean)."""
+        x_self = _xyz_rpy(self.T_target_source)
+        difference = _wrapped_difference(_xyz_rpy(other.T_target_source), x_self)
+        information = self.information + other.information
+        x_mean = x_self + np.linalg.lstsq(information, other.information @ difference, rcond=None)[0]
+        return PosePrior(_pose(x_mean, _rotation_and_derivatives(x_mean)[0]), information)
+
     def displacement_sigma_m(self, lever_m: float) -> float:
         """How far (1 sigma, m) the prior's uncertainty may move a point ``lever_m`` from the
         origin: the largest translation sigma plus the lever times the largest rotation sigma."""

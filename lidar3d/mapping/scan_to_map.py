@@ -34,14 +34,18 @@ def register_to_submap(
     config: MappingConfig,
     max_iterations: int | None = None,
     prior: PosePrior | None = None,
+    *,
+    widen_search: bool = True,
 ) -> SolveResult:
     """Refine ``T_world_lidar`` of a scan whose features are given in its lidar frame.
 
-    ``prior``: the motion model's belief about the pose; without one, directions the submap
-    leaves degenerate keep the guess (LOAM's solution remapping). With one, the robust kernel
-    and the correspondence search start as wide as the prior's uncertainty moves the corner
-    points (one standard deviation at their median range), so a turn the prior did not expect
-    is still matched.
+    ``prior``: the belief about the pose before the rows (the motion model's, the odometry's
+    heading); without one, directions the submap leaves degenerate keep the guess (LOAM's
+    solution remapping). With one and ``widen_search``, the robust kernel and the correspondence
+    search start as wide as the prior's uncertainty moves the corner points (one standard
+    deviation at their median range), so a turn the prior did not expect is still matched;
+    without ``widen_search`` they start at their final width (a prior that only keeps the guess
+    where the rows are silent).
     """
     source = np.concatenate([corner_lidar, surf_lidar])
     find_matches = _matcher(target, len(corner_lidar), len(surf_lidar))
@@ -62,7 +66,7 @@ def register_to_submap(
         source,
         find_matches,
         max_iterations=config.max_iterations if max_iterations is None else max_iterations,
-        initial_scale_m=0.0 if prior is None else prior.displacement_sigma_m(_median_range_m(corner_lidar)),
+        initial_scale_m=prior.displacement_sigma_m(_median_range_m(corner_lidar)) if prior and widen_search else 0.0,
     )
     if config.probe_shift_m <= 0 or result.iterations == 0:
         return result
