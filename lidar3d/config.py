@@ -633,6 +633,11 @@ class DynamicConfig:
         _closed(0.0, 1000.0),
         "at the end a map voxel with more dynamic points than this times its static ones moves",
     )
+    grazing_slack: bool = _key(True, None, "a ray sees through only beyond the slack of the surface it hit at a grazing angle")
+    pose_angle_deg: float = _key(0.5, _closed(0.0, 10.0, "deg"), "angular pose error the grazing slack allows for")
+    persist_scans: int = _key(
+        0, _closed(0, 10_000), "a voxel hit by probes this many sweeps before and after is static (0: off)"
+    )
 
 
 @dataclass(frozen=True, slots=True)

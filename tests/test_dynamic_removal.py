@@ -46,7 +46,9 @@ def test_a_ray_returning_beyond_sees_through_a_nearer_one_hits_and_nothing_prove
         hits, misses = _evidence(voxel, [_probe(beam)], elevation, config)
         assert (int(hits[0]), int(misses[0])) == expected, name
     # An absent return (sky, glass, a dropout): the pixel holds nothing, the voxel gets no evidence.
-    empty = SweepProbe(np.zeros(3), np.eye(3), np.zeros((1, 1800, 3), np.float32), np.zeros((1, 1800), np.float32))
+    empty = SweepProbe(
+        np.zeros(3), np.eye(3), np.zeros((1, 1800, 3), np.float32), np.zeros((1, 1800), np.float32), np.ones((1, 1800))
+    )
     hits, misses = _evidence(voxel, [empty], elevation, config)
     assert hits[0] == misses[0] == 0
     # Beyond max_range_m a probe gives no evidence either.

@@ -101,12 +101,15 @@ class SweepProbe:
         R_world_lidar: (3,3) sensor orientation.
         points_lidar: (rings, bins, 3) float32 nearest return per pixel, lidar frame (0 where none).
         range_m: (rings, bins) float32 its range, 0 where the pixel holds no return.
+        sin_grazing: (rings, bins) float32 sine of the angle between the ray and the surface it hit
+            (:func:`sin_grazing`; 1 where unknown: taken as hit head-on).
     """
 
     origin_m: np.ndarray
     R_world_lidar: np.ndarray
     points_lidar: np.ndarray
     range_m: np.ndarray
+    sin_grazing: np.ndarray
 
     @classmethod
     def of(cls, sweep: PlacedSweep, n_rings: int, n_bins: int) -> SweepProbe:
@@ -121,12 +124,48 @@ class SweepProbe:
         image_points[pixel[order]] = points[order]
         image_range[pixel[order]] = range_m[order]
         T = sweep.T_world_lidar
-        return cls(
-            T[:3, 3].copy(),
-            T[:3, :3].copy(),
-            image_points.reshape(n_rings, n_bins, 3),
-            image_range.reshape(n_rings, n_bins),
-        )
+        image_points = image_points.reshape(n_rings, n_bins, 3)
+        image_range = image_range.reshape(n_rings, n_bins)
+        return cls(T[:3, 3].copy(), T[:3, :3].copy(), image_points, image_range, sin_grazing(image_points, image_range))
+
+
+def sin_grazing(points: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Per pixel of a range image, the sine of the angle between the ray and the surface it hit.
+
+    The surface is spanned by the pixel's neighbours in azimuth (two columns away) and in ring, on
+    each axis the neighbour nearer in range (the same surface, more likely): its normal is their
+    cross product. A ray meeting a wall head-on gives 1; one skimming the road far ahead a few
+    hundredths.
+
+    Args:
+        points: (rings, bins, 3) nearest return per pixel, lidar frame (0 where none).
+        range_m: (rings, bins) its range, 0 where none.
+
+    Returns:
+        (rings, bins) float32 in [0, 1]; 1 where a neighbour on either axis is missing.
+    """
+    valid = range_m > 0.0
+
+    def tangent(before: np.ndarray, after: np.ndarray, ok_before: np.ndarray, ok_after: np.ndarray):
+        gap_before = np.where(ok_before, np.abs(np.linalg.norm(before, axis=-1) - range_m), np.inf)
+        gap_after = np.where(ok_after, np.abs(np.linalg.norm(after, axis=-1) - range_m), np.inf)
+        use_after = gap_after < gap_before
+        return np.where(use_after[..., None], after, before) - points, np.isfinite(np.minimum(gap_before, gap_after))
+
+    step = 2
+    along_azimuth, ok_azimuth = tangent(
+        np.roll(points, step, axis=1), np.roll(points, -step, axis=1), np.roll(valid, step, 1), np.roll(valid, -step, 1)
+    )
+    below = np.concatenate([points[:1], points[:-1]])
+    above = np.concatenate([points[1:], points[-1:]])
+    valid_below = np.concatenate([np.zeros_like(valid[:1]), valid[:-1]])
+    valid_above = np.concatenate([valid[1:], np.zeros_like(valid[:1])])
+    along_ring, ok_ring = tangent(below, above, valid_below, valid_above)
+    normal = np.cross(along_azimuth, along_ring)
+    norm = np.linalg.norm(normal, axis=-1) * np.maximum(range_m, 1e-9)
+    sine = np.abs(np.einsum("rbk,rbk->rb", normal, points)) / np.maximum(norm, 1e-12)
+    known = valid & ok_azimuth & ok_ring & (norm > 1e-12)
+    return np.where(known, np.clip(sine, 0.0, 1.0), 1.0).astype(np.float32)
 
 
 def _azimuth_bin(points: np.ndarray, n_bins: int) -> np.ndarray:
@@ -147,6 +186,7 @@ class ProbeStack:
         self.R_world_lidar = np.tile(np.eye(3), (n_slots, 1, 1))
         self.points_lidar = np.zeros((n_slots, n_rings, n_bins, 3), np.float32)
         self.range_m = np.zeros((n_slots, n_rings, n_bins), np.float32)
+        self.sin_grazing = np.ones((n_slots, n_rings, n_bins), np.float32)
 
     @classmethod
     def of(cls, probes: list[SweepProbe]) -> ProbeStack:
@@ -163,6 +203,7 @@ class ProbeStack:
         self.R_world_lidar[slot] = probe.R_world_lidar
         self.points_lidar[slot] = probe.points_lidar
         self.range_m[slot] = probe.range_m
+        self.sin_grazing[slot] = probe.sin_grazing
 
 
 def voxel_evidence(
@@ -183,10 +224,33 @@ def voxel_evidence(
     Returns:
         (V,) int hits and (V,) int misses.
     """
+    hits, misses, _ = sided_evidence(centroids_world, stack, slots, np.zeros(len(slots), bool), elevation_rad, config)
+    return hits, misses
+
+
+def sided_evidence(
+    centroids_world: np.ndarray,
+    stack: ProbeStack,
+    slots: np.ndarray,
+    later: np.ndarray,
+    elevation_rad: np.ndarray,
+    config: DynamicConfig,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`voxel_evidence`, and of the hits those by the probes flagged ``later`` ((P,) bool).
+
+    A ray sees through a voxel when it returns beyond it by more than ``range_margin_m`` and, with
+    ``grazing_slack``, by more than the slack of the surface it hit: a voxel on that surface, offset
+    from the ray by up to ``pass_tolerance_m`` plus the pose's angular error (``pose_angle_deg``)
+    times the range, lies ``offset / sin(grazing angle)`` before the return along it.
+
+    Returns:
+        (V,) int hits, (V,) int misses, (V,) int hits by the later probes.
+    """
     n_voxels = len(centroids_world)
     slots = np.asarray(slots, dtype=np.int64)
     if not n_voxels or not slots.size:
-        return np.zeros(n_voxels, np.int64), np.zeros(n_voxels, np.int64)
+        zeros = np.zeros(n_voxels, np.int64)
+        return zeros, zeros.copy(), zeros.copy()
     _, n_rings, n_bins = stack.range_m.shape
     # Ring of the nearest elevation: the boundaries halfway between neighbouring beams, as sines.
     sin_boundaries = np.sin(0.5 * (elevation_rad[1:] + elevation_rad[:-1]))
@@ -204,10 +268,17 @@ def voxel_evidence(
     along = (x * flat[3 * pixel] + y * flat[3 * pixel + 1] + z * flat[3 * pixel + 2]) / np.maximum(return_m, 1e-9)
     passes = (return_m > 0.0) & (rho > margin) & (rho <= config.max_range_m)
     passes &= rho * rho - along * along < config.pass_tolerance_m**2
+    beyond = margin
+    if config.grazing_slack:
+        offset = config.pass_tolerance_m + along * np.tan(np.deg2rad(config.pose_angle_deg))
+        sine = stack.sin_grazing.reshape(-1)[pixel].astype(np.float64)
+        beyond = np.maximum(margin, offset / np.maximum(sine, 1e-3))
     voxel = np.tile(np.arange(n_voxels), slots.size)
-    misses = np.bincount(voxel[passes & (return_m > along + margin)], minlength=n_voxels)
-    hits = np.bincount(voxel[passes & (np.abs(return_m - along) <= margin)], minlength=n_voxels)
-    return hits, misses
+    misses = np.bincount(voxel[passes & (return_m > along + beyond)], minlength=n_voxels)
+    hit = passes & (np.abs(return_m - along) <= margin)
+    hits = np.bincount(voxel[hit], minlength=n_voxels)
+    later_hits = np.bincount(voxel[hit & np.repeat(np.asarray(later, bool), n_voxels)], minlength=n_voxels)
+    return hits, misses, later_hits
 
 
 def outvoted_voxels(
@@ -290,8 +361,19 @@ class DynamicFilter:
         test, centroids = test[above], centroids[above]
         offset = self._slot_sweep - index
         slots = np.flatnonzero((offset != 0) & (np.abs(offset) <= config.window_scans))
-        hits, misses = voxel_evidence(centroids, self._stack, slots, self._elevation_rad, config)
+        later = offset[slots] > 0
+        hits, misses, later_hits = sided_evidence(centroids, self._stack, slots, later, self._elevation_rad, config)
         dynamic[test] = (misses >= config.min_misses) & (misses >= config.miss_ratio * hits)
+        if config.persist_scans:
+            # Hit by probes at least persist_scans before and after: occupied for longer than a
+            # moving object stays in a voxel, so static (leaves rays also pass between).
+            # Only the voxels called dynamic are asked again.
+            gap = np.abs(offset[slots]) >= config.persist_scans
+            asked = np.flatnonzero(dynamic[test])
+            far_hits, _, far_later = sided_evidence(
+                centroids[asked], self._stack, slots[gap], later[gap], self._elevation_rad, config
+            )
+            dynamic[test[asked[(far_later > 0) & (far_hits > far_later)]]] = False
         valid_until[valid_until < 0] = index + config.reuse_scans
         valid_until[test[(hits >= 2) & (misses == 0)]] = index + config.window_scans
         self._recent.appendleft((keys, dynamic, valid_until))
