@@ -6,7 +6,9 @@ is tested against the sweeps of a window around it (``window_scans`` before and 
 (ring by elevation, column by azimuth) and the return in that pixel is compared with it:
 
 * the probe's ray passes within ``pass_tolerance_m`` of the centroid and returns at least
-  ``range_margin_m`` beyond it: the probe saw **through** the voxel (a miss);
+  ``range_margin_m`` beyond it, and beyond the *grazing slack* of the surface it hit (see
+  :func:`voxel_evidence`: a ray skimming the road returns far beyond a road voxel it passes over):
+  the probe saw **through** the voxel (a miss);
 * the ray passes within that tolerance and returns within the margin of it: a **hit**;
 * the return is nearer (the voxel was occluded), or the pixel holds no return (sky, glass, a
   dropout: absent returns prove nothing), or the ray passes farther away: no evidence.
@@ -16,10 +18,11 @@ times as many probes as hit it; its points in that sweep are removed from the ma
 casting done from the voxel's side (one projection per voxel and probe, instead of a walk along every
 ray), so it costs a few array operations per sweep. Thin structures survive because a ray has to pass
 close to the centroid of what was hit (a pole's centroid lies on the pole); surfaces seen at grazing
-angles because their voxels are hit about as often as rays skim past them; the ground because
-voxels less than ``ground_band_m`` above the lowest point of the 3x3 one-metre cells around them are
-never tested. :func:`outvoted_voxels` is the vote over the whole run that
-:class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
+angles (the road far ahead, facades along the street) because a ray running along a surface is not
+taken to see through the voxels on it (the grazing slack) and because they are hit about as often as
+rays skim past them; the ground also because voxels less than ``ground_band_m`` above the lowest
+point of the 3x3 one-metre cells around them are never tested. :func:`outvoted_voxels` is the vote
+over the whole run that :class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
 
 Records: :class:`PlacedSweep` in, :class:`FilteredSweep` out (a window of sweeps later: a sweep is
 decided once the probes after it are known). Frames: world = the map frame; lidar = the sweep's
@@ -124,9 +127,9 @@ class SweepProbe:
         image_points[pixel[order]] = points[order]
         image_range[pixel[order]] = range_m[order]
         T = sweep.T_world_lidar
-        image_points = image_points.reshape(n_rings, n_bins, 3)
-        image_range = image_range.reshape(n_rings, n_bins)
-        return cls(T[:3, 3].copy(), T[:3, :3].copy(), image_points, image_range, sin_grazing(image_points, image_range))
+        grid_points = image_points.reshape(n_rings, n_bins, 3)
+        grid_range = image_range.reshape(n_rings, n_bins)
+        return cls(T[:3, 3].copy(), T[:3, :3].copy(), grid_points, grid_range, sin_grazing(grid_points, grid_range))
 
 
 def sin_grazing(points: np.ndarray, range_m: np.ndarray) -> np.ndarray:
@@ -216,6 +219,13 @@ def voxel_evidence(
     """Hits and misses of each voxel centroid over the probes in ``slots`` of ``stack`` (see the
     module docstring).
 
+    A ray sees through a voxel when it returns beyond it by more than ``range_margin_m`` and, with
+    ``grazing_slack``, by more than the slack of the surface it hit: a voxel on that surface, offset
+    from the ray by up to ``pass_tolerance_m`` plus the pose's angular error (``pose_angle_deg``)
+    times the range, lies up to ``offset / sin(grazing angle)`` before the return along the ray (the
+    probe's :attr:`SweepProbe.sin_grazing`). So the road a ray skims, or a facade it runs along, is
+    not seen through; what stood higher above that surface than the offset is.
+
     Args:
         centroids_world: (V,3) voxel centroids, world frame.
         stack: the probes; ``slots``: (P,) which of them to use.
@@ -224,33 +234,10 @@ def voxel_evidence(
     Returns:
         (V,) int hits and (V,) int misses.
     """
-    hits, misses, _ = sided_evidence(centroids_world, stack, slots, np.zeros(len(slots), bool), elevation_rad, config)
-    return hits, misses
-
-
-def sided_evidence(
-    centroids_world: np.ndarray,
-    stack: ProbeStack,
-    slots: np.ndarray,
-    later: np.ndarray,
-    elevation_rad: np.ndarray,
-    config: DynamicConfig,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`voxel_evidence`, and of the hits those by the probes flagged ``later`` ((P,) bool).
-
-    A ray sees through a voxel when it returns beyond it by more than ``range_margin_m`` and, with
-    ``grazing_slack``, by more than the slack of the surface it hit: a voxel on that surface, offset
-    from the ray by up to ``pass_tolerance_m`` plus the pose's angular error (``pose_angle_deg``)
-    times the range, lies ``offset / sin(grazing angle)`` before the return along it.
-
-    Returns:
-        (V,) int hits, (V,) int misses, (V,) int hits by the later probes.
-    """
     n_voxels = len(centroids_world)
     slots = np.asarray(slots, dtype=np.int64)
     if not n_voxels or not slots.size:
-        zeros = np.zeros(n_voxels, np.int64)
-        return zeros, zeros.copy(), zeros.copy()
+        return np.zeros(n_voxels, np.int64), np.zeros(n_voxels, np.int64)
     _, n_rings, n_bins = stack.range_m.shape
     # Ring of the nearest elevation: the boundaries halfway between neighbouring beams, as sines.
     sin_boundaries = np.sin(0.5 * (elevation_rad[1:] + elevation_rad[:-1]))
@@ -268,17 +255,15 @@ def sided_evidence(
     along = (x * flat[3 * pixel] + y * flat[3 * pixel + 1] + z * flat[3 * pixel + 2]) / np.maximum(return_m, 1e-9)
     passes = (return_m > 0.0) & (rho > margin) & (rho <= config.max_range_m)
     passes &= rho * rho - along * along < config.pass_tolerance_m**2
-    beyond = margin
+    beyond: float | np.ndarray = margin
     if config.grazing_slack:
         offset = config.pass_tolerance_m + along * np.tan(np.deg2rad(config.pose_angle_deg))
         sine = stack.sin_grazing.reshape(-1)[pixel].astype(np.float64)
         beyond = np.maximum(margin, offset / np.maximum(sine, 1e-3))
     voxel = np.tile(np.arange(n_voxels), slots.size)
     misses = np.bincount(voxel[passes & (return_m > along + beyond)], minlength=n_voxels)
-    hit = passes & (np.abs(return_m - along) <= margin)
-    hits = np.bincount(voxel[hit], minlength=n_voxels)
-    later_hits = np.bincount(voxel[hit & np.repeat(np.asarray(later, bool), n_voxels)], minlength=n_voxels)
-    return hits, misses, later_hits
+    hits = np.bincount(voxel[passes & (np.abs(return_m - along) <= margin)], minlength=n_voxels)
+    return hits, misses
 
 
 def outvoted_voxels(
@@ -361,19 +346,8 @@ class DynamicFilter:
         test, centroids = test[above], centroids[above]
         offset = self._slot_sweep - index
         slots = np.flatnonzero((offset != 0) & (np.abs(offset) <= config.window_scans))
-        later = offset[slots] > 0
-        hits, misses, later_hits = sided_evidence(centroids, self._stack, slots, later, self._elevation_rad, config)
+        hits, misses = voxel_evidence(centroids, self._stack, slots, self._elevation_rad, config)
         dynamic[test] = (misses >= config.min_misses) & (misses >= config.miss_ratio * hits)
-        if config.persist_scans:
-            # Hit by probes at least persist_scans before and after: occupied for longer than a
-            # moving object stays in a voxel, so static (leaves rays also pass between).
-            # Only the voxels called dynamic are asked again.
-            gap = np.abs(offset[slots]) >= config.persist_scans
-            asked = np.flatnonzero(dynamic[test])
-            far_hits, _, far_later = sided_evidence(
-                centroids[asked], self._stack, slots[gap], later[gap], self._elevation_rad, config
-            )
-            dynamic[test[asked[(far_later > 0) & (far_hits > far_later)]]] = False
         valid_until[valid_until < 0] = index + config.reuse_scans
         valid_until[test[(hits >= 2) & (misses == 0)]] = index + config.window_scans
         self._recent.appendleft((keys, dynamic, valid_until))
