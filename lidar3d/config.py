@@ -629,7 +629,7 @@ class DynamicConfig:
         0.0, _closed(0.0, 1.0), "... plus this much per metre of range from their sweep's sensor (pose tilt errors)"
     )
     vote_ratio: float = _key(
-        1.0,
+        3.0,
         _closed(0.0, 1000.0),
         "at the end a map voxel with more dynamic points than this times its static ones moves",
     )
