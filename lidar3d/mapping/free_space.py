@@ -31,6 +31,7 @@ deskewed lidar frame at its stamp.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections import deque
 from dataclasses import dataclass
@@ -51,6 +52,8 @@ __all__ = [
 ]
 
 _GROUND_CELL_M = 1.0  # cell of the local ground height (lowest point of the 3x3 cells around)
+_NO_POINTS = np.zeros((0, 3))
+_NO_RINGS = np.zeros(0, np.int64)
 _NEIGHBOUR_SHIFTS = tuple((di << 32) + dj for di in (-1, 0, 1) for dj in (-1, 0, 1))
 
 
@@ -312,13 +315,14 @@ class DynamicFilter:
         """Take the next sweep; returns the sweeps whose window is now complete (oldest first)."""
         index = self._n_added
         self._n_added += 1
-        self._sweeps.append((index, sweep))
         if index % self.config.probe_every == 0:
             self._ground.note(sweep.points_world)
             slot = self._n_probes % self._probe_slots
             self._stack.put(slot, SweepProbe.of(sweep, len(self._elevation_rad), self._n_bins))
             self._slot_sweep[slot] = index
             self._n_probes += 1
+        # Waiting for its window it needs only its world points: the lidar frame ones go (half the memory).
+        self._sweeps.append((index, dataclasses.replace(sweep, points_lidar=_NO_POINTS, ring=_NO_RINGS)))
         decided = []
         while self._sweeps and self._sweeps[0][0] + self.config.window_scans <= index:
             decided.append(self._decide())
