@@ -622,8 +622,8 @@ class DynamicConfig:
 
     enabled: bool = _key(True, None, "remove points in space later seen through (false: lidar3d run --keep-dynamic)")
     voxel_m: float = _key(0.2, _positive(5.0, "m"), "voxel of the hit/miss evidence")
-    window_scans: int = _key(30, _closed(1, 10_000), "sweeps before and after a sweep whose rays test its voxels")
-    probe_every: int = _key(3, _closed(1, 1000), "every n-th sweep of the window is a probe")
+    window_scans: int = _key(90, _closed(1, 10_000), "sweeps before and after a sweep whose rays test its voxels")
+    probe_every: int = _key(6, _closed(1, 1000), "every n-th sweep of the window is a probe")
     reuse_scans: int = _key(5, _closed(1, 1000), "a voxel tested this few sweeps ago keeps that decision")
     max_range_m: float = _key(100.0, _positive(1000.0, "m"), "voxels farther from a probe get no evidence from it")
     pass_tolerance_m: float = _key(0.2, _positive(5.0, "m"), "a ray passes a voxel within this of its centroid")
@@ -634,13 +634,17 @@ class DynamicConfig:
         0.2, _closed(0.0, 10.0, "m"), "voxels this close above the lowest point around them are kept (0: off)"
     )
     ground_band_per_m: float = _key(
-        0.01, _closed(0.0, 1.0), "... plus this much per metre of range from their sweep's sensor (pose tilt errors)"
+        0.0, _closed(0.0, 1.0), "... plus this much per metre of range from their sweep's sensor (pose tilt errors)"
     )
     vote_ratio: float = _key(
-        1.0,
+        3.0,
         _closed(0.0, 1000.0),
         "at the end a map voxel with more dynamic points than this times its static ones moves",
     )
+    grazing_slack: bool = _key(
+        True, None, "a ray sees through a voxel only beyond the slack of the surface it hit at a grazing angle"
+    )
+    pose_angle_deg: float = _key(0.5, _closed(0.0, 10.0, "deg"), "angular pose error the grazing slack allows for")
 
 
 @dataclass(frozen=True, slots=True)

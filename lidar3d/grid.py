@@ -124,7 +124,7 @@ def grid_run(
         dynamic_points, _ = read_pcd(run / "dynamic.pcd")
         dynamic_keys = np.unique(voxel_keys(dynamic_points, config.mapping.map_voxel_m))
     inputs = [_input_path(run, p) for p in summary.inputs]
-    ground = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
+    ground, ground_masks = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
     if ground is None:  # no scan marked ground cells (e.g. segmentation failed on every scan)
         log.warning("%s: no ground cells in the scans: the local ground is taken from map.pcd", run)
         ground = GroundModel.from_points(lowest_per_cell(map_points, GROUND_CELL_M), GROUND_CELL_M)
@@ -133,9 +133,9 @@ def grid_run(
     bounds = np.array([positions[:, :2].min(axis=0) - reach, positions[:, :2].max(axis=0) + reach])
     builder = OccupancyGridBuilder(params, ground, bounds)
     n_scans = n_left_out = 0
-    for placed in _placed_scans(inputs, config, trajectory, dynamic_keys):
+    for placed, on_ground in zip(_placed_scans(inputs, config, trajectory, dynamic_keys), ground_masks, strict=True):
         n_left_out += placed.n_moving
-        builder.add(placed.origin_world, placed.points_world)
+        builder.add(placed.origin_world, placed.points_world, on_ground)
         n_scans += 1
         if on_scan is not None:
             on_scan(n_scans, len(trajectory))
@@ -210,17 +210,18 @@ def _placed_scans(
 
 def _ground_of_scans(
     inputs: list[Path], config: Config, trajectory: Trajectory, dynamic_keys: np.ndarray
-) -> GroundModel | None:
+) -> tuple[GroundModel | None, list[np.ndarray]]:
     """The local ground fitted to the ground cells the segmentation marks in every scan (the lowest
-    per ``GROUND_CELL_M`` cell over all scans; None when no scan has any)."""
-    lowest = [
-        lowest_per_cell(placed.points_world[placed.ground], GROUND_CELL_M)
-        for placed in _placed_scans(inputs, config, trajectory, dynamic_keys, segment=True)
-    ]
+    per ``GROUND_CELL_M`` cell over all scans; None when no scan has any), and per scan (in
+    :func:`_placed_scans` order) the (N,) bool mask of its points marked ground."""
+    lowest, masks = [], []
+    for placed in _placed_scans(inputs, config, trajectory, dynamic_keys, segment=True):
+        lowest.append(lowest_per_cell(placed.points_world[placed.ground], GROUND_CELL_M))
+        masks.append(placed.ground)
     every = np.concatenate(lowest) if lowest else np.zeros((0, 3))
     if not len(every):
-        return None
-    return GroundModel.from_points(lowest_per_cell(every, GROUND_CELL_M), GROUND_CELL_M)
+        return None, masks
+    return GroundModel.from_points(lowest_per_cell(every, GROUND_CELL_M), GROUND_CELL_M), masks
 
 
 def _input_path(run: Path, recorded: str) -> Path:

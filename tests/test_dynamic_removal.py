@@ -8,7 +8,7 @@ import pytest
 
 from lidar3d.config import Config, DynamicConfig
 from lidar3d.mapping.dense_map import DenseMap
-from lidar3d.mapping.free_space import PlacedSweep, ProbeStack, SweepProbe, voxel_evidence
+from lidar3d.mapping.free_space import PlacedSweep, ProbeStack, SweepProbe, sin_grazing, voxel_evidence
 from lidar3d.mapping.voxel import VoxelMap, voxel_keys
 from lidar3d.records import Scan
 from lidar3d.sim import DYNAMIC_CLASSES, ObjectClass, Simulation
@@ -46,7 +46,9 @@ def test_a_ray_returning_beyond_sees_through_a_nearer_one_hits_and_nothing_prove
         hits, misses = _evidence(voxel, [_probe(beam)], elevation, config)
         assert (int(hits[0]), int(misses[0])) == expected, name
     # An absent return (sky, glass, a dropout): the pixel holds nothing, the voxel gets no evidence.
-    empty = SweepProbe(np.zeros(3), np.eye(3), np.zeros((1, 1800, 3), np.float32), np.zeros((1, 1800), np.float32))
+    empty = SweepProbe(
+        np.zeros(3), np.eye(3), np.zeros((1, 1800, 3), np.float32), np.zeros((1, 1800), np.float32), np.ones((1, 1800))
+    )
     hits, misses = _evidence(voxel, [empty], elevation, config)
     assert hits[0] == misses[0] == 0
     # Beyond max_range_m a probe gives no evidence either.
@@ -111,7 +113,9 @@ def test_moving_objects_leave_the_map_and_the_static_world_stays(city):
     removed_share = 1.0 - np.isin(dynamic_only, kept).mean()
     kept_share = np.isin(static, kept).mean()
     assert len(dynamic_only) > 1000  # the drive has traffic to remove
-    assert removed_share >= 0.8, removed_share  # 4 s only: the windows of the first and last sweeps are cut
+    # 4 s only: every sweep's 9 s window is cut by the drive's ends, so each sweep has 3-7 probes instead
+    # of 30 (73 % here; 84 % with every 3rd sweep a probe; on 40 s 96 %: docs/stages/dynamic-removal.md).
+    assert removed_share >= 0.7, removed_share
     assert kept_share >= 0.98, kept_share
     # The ground and the buildings are all but untouched; poles (lamp arms) and trees (leaves rays pass
     # between) lose some voxels: docs/stages/dynamic-removal.md.
@@ -207,3 +211,61 @@ def test_run_writes_the_static_map_and_the_removed_points_and_keep_dynamic_keeps
     assert (tmp_path / "clean" / "trajectory_tum.txt").read_text() == (
         tmp_path / "all" / "trajectory_tum.txt"
     ).read_text()
+
+
+# ---------------------------------------------------------------- grazing rays and the slack
+
+
+def _ground_image(height_m: float, elevation_deg: np.ndarray, n_bins: int = 1800):
+    """A sensor ``height_m`` above flat ground: every downward ring's return on the ground."""
+    elevation = np.deg2rad(elevation_deg)
+    azimuth = (np.arange(n_bins) + 0.5) * (2 * np.pi / n_bins) - np.pi
+    r = height_m / np.sin(-elevation)
+    points = np.stack(
+        [
+            np.outer(r * np.cos(elevation), np.cos(azimuth)),
+            np.outer(r * np.cos(elevation), np.sin(azimuth)),
+            np.broadcast_to((-height_m * np.ones_like(r))[:, None], (len(r), n_bins)),
+        ],
+        axis=-1,
+    ).astype(np.float32)
+    return points, np.linalg.norm(points, axis=-1).astype(np.float32), elevation
+
+
+def test_the_grazing_sine_is_the_rays_angle_to_the_surface_it_hit():
+    points, range_m, elevation = _ground_image(1.8, np.array([-15.0, -9.0, -5.0, -3.0, -2.0, -1.0]))
+    sine = sin_grazing(points, range_m)
+    # On flat ground the ray meets it at its own depression angle.
+    np.testing.assert_allclose(sine[1:-1].mean(axis=1), np.sin(-elevation[1:-1]), rtol=0.02)
+    # A wall 10 m ahead of a fan of rays, hit head-on in the middle column.
+    azimuth = np.deg2rad(np.linspace(-5, 5, 51))
+    elevation_wall = np.deg2rad(np.array([-2.0, 0.0, 2.0]))
+    wall = np.stack(
+        [
+            np.full((3, 51), 10.0),
+            10.0 * np.tan(azimuth)[None].repeat(3, 0),
+            10.0 * np.tan(elevation_wall)[:, None].repeat(51, 1) / np.cos(azimuth)[None],
+        ],
+        axis=-1,
+    ).astype(np.float32)
+    assert sin_grazing(wall, np.linalg.norm(wall, axis=-1).astype(np.float32))[1, 25] > 0.99
+    # No neighbours on an axis: unknown, taken as head-on.
+    assert sin_grazing(points[:1], range_m[:1]).min() == 1.0
+
+
+def test_a_ray_skimming_the_road_does_not_see_through_the_road_a_car_above_it_is_seen_through():
+    ring_deg = np.array([-15.0, -9.0, -5.0, -3.0, -2.0, -1.0])
+    points, range_m, elevation = _ground_image(1.8, ring_deg)
+    probe = SweepProbe(np.zeros(3), np.eye(3), points, range_m, sin_grazing(points, range_m))
+    ray = np.array([np.cos(elevation[3]), 0.0, np.sin(elevation[3])])  # the -3 degree ring, 34 m away
+    # A road voxel 0.15 m above the ground where that ray passes 0.12 m over it, 2.3 m before it returns.
+    road = ray * (range_m[3, 900] - 2.3) + np.array([0.0, 0.0, -0.12])
+    road[2] = -1.8 + 0.15
+    # What stood 0.75 m above the ground 30 m away (a car now gone): the -2 degree ray passes it and
+    # hits the road 22 m beyond.
+    car = 30.0 * np.array([np.cos(elevation[4]), 0.0, np.sin(elevation[4])])
+    config = DynamicConfig()
+    _, misses = _evidence(np.array([road, car]), [probe], elevation, config)
+    assert misses[0] == 0 and misses[1] == 1
+    plain = dataclasses.replace(config, grazing_slack=False)
+    assert _evidence(np.array([road]), [probe], elevation, plain)[1][0] == 1  # without the slack: "seen through"

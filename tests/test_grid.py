@@ -76,6 +76,22 @@ def test_points_outside_the_band_are_no_obstacle_and_occupied_wins_within_a_swee
     assert grid.log_odds[i[2], j[2]] == pytest.approx(params.hit_log_odds)
 
 
+def test_points_the_segmentation_calls_ground_are_no_obstacle_even_inside_the_band():
+    # A slope the ground model under-estimates puts road points into the band: marked ground, they stay free.
+    params = GridParams(resolution_m=0.2, band_m=(0.3, 2.0))
+    bounds = np.array([[-20, -20], [20, 20]])
+    sensor = np.array([0.0, 0.0, 1.8])
+    road = np.array([[10.0, 0.0, 0.5], [10.0, 5.0, 0.5]])  # 0.5 m above the modelled ground
+    grids = {}
+    for marked in (False, True):
+        builder = OccupancyGridBuilder(params, _ground(lambda xy: np.zeros(len(xy))), bounds)
+        builder.add(sensor, road, np.array([marked, False]))
+        grids[marked] = builder.grid()
+    i, j, _ = grids[True].cell_of(road[:, :2])
+    assert grids[False].log_odds[i[0], j[0]] > 0 and grids[True].log_odds[i[0], j[0]] <= 0
+    assert grids[True].log_odds[i[1], j[1]] > 0  # the unmarked point is still an obstacle
+
+
 def test_log_odds_stay_clamped():
     params = GridParams(resolution_m=0.2, clamp_log_odds=2.0)
     builder = OccupancyGridBuilder(params, _ground(lambda xy: np.zeros(len(xy))), np.array([[-20, -20], [20, 20]]))

@@ -6,7 +6,9 @@ is tested against the sweeps of a window around it (``window_scans`` before and 
 (ring by elevation, column by azimuth) and the return in that pixel is compared with it:
 
 * the probe's ray passes within ``pass_tolerance_m`` of the centroid and returns at least
-  ``range_margin_m`` beyond it: the probe saw **through** the voxel (a miss);
+  ``range_margin_m`` beyond it, and beyond the *grazing slack* of the surface it hit (see
+  :func:`voxel_evidence`: a ray skimming the road returns far beyond a road voxel it passes over):
+  the probe saw **through** the voxel (a miss);
 * the ray passes within that tolerance and returns within the margin of it: a **hit**;
 * the return is nearer (the voxel was occluded), or the pixel holds no return (sky, glass, a
   dropout: absent returns prove nothing), or the ray passes farther away: no evidence.
@@ -16,10 +18,11 @@ times as many probes as hit it; its points in that sweep are removed from the ma
 casting done from the voxel's side (one projection per voxel and probe, instead of a walk along every
 ray), so it costs a few array operations per sweep. Thin structures survive because a ray has to pass
 close to the centroid of what was hit (a pole's centroid lies on the pole); surfaces seen at grazing
-angles because their voxels are hit about as often as rays skim past them; the ground because
-voxels less than ``ground_band_m`` above the lowest point of the 3x3 one-metre cells around them are
-never tested. :func:`outvoted_voxels` is the vote over the whole run that
-:class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
+angles (the road far ahead, facades along the street) because a ray running along a surface is not
+taken to see through the voxels on it (the grazing slack) and because they are hit about as often as
+rays skim past them; the ground also because voxels less than ``ground_band_m`` above the lowest
+point of the 3x3 one-metre cells around them are never tested. :func:`outvoted_voxels` is the vote
+over the whole run that :class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
 
 Records: :class:`PlacedSweep` in, :class:`FilteredSweep` out (a window of sweeps later: a sweep is
 decided once the probes after it are known). Frames: world = the map frame; lidar = the sweep's
@@ -28,6 +31,7 @@ deskewed lidar frame at its stamp.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from collections import deque
 from dataclasses import dataclass
@@ -48,6 +52,8 @@ __all__ = [
 ]
 
 _GROUND_CELL_M = 1.0  # cell of the local ground height (lowest point of the 3x3 cells around)
+_NO_POINTS = np.zeros((0, 3))
+_NO_RINGS = np.zeros(0, np.int64)
 _NEIGHBOUR_SHIFTS = tuple((di << 32) + dj for di in (-1, 0, 1) for dj in (-1, 0, 1))
 
 
@@ -101,12 +107,15 @@ class SweepProbe:
         R_world_lidar: (3,3) sensor orientation.
         points_lidar: (rings, bins, 3) float32 nearest return per pixel, lidar frame (0 where none).
         range_m: (rings, bins) float32 its range, 0 where the pixel holds no return.
+        sin_grazing: (rings, bins) float32 sine of the angle between the ray and the surface it hit
+            (:func:`sin_grazing`; 1 where unknown: taken as hit head-on).
     """
 
     origin_m: np.ndarray
     R_world_lidar: np.ndarray
     points_lidar: np.ndarray
     range_m: np.ndarray
+    sin_grazing: np.ndarray
 
     @classmethod
     def of(cls, sweep: PlacedSweep, n_rings: int, n_bins: int) -> SweepProbe:
@@ -121,12 +130,48 @@ class SweepProbe:
         image_points[pixel[order]] = points[order]
         image_range[pixel[order]] = range_m[order]
         T = sweep.T_world_lidar
-        return cls(
-            T[:3, 3].copy(),
-            T[:3, :3].copy(),
-            image_points.reshape(n_rings, n_bins, 3),
-            image_range.reshape(n_rings, n_bins),
-        )
+        grid_points = image_points.reshape(n_rings, n_bins, 3)
+        grid_range = image_range.reshape(n_rings, n_bins)
+        return cls(T[:3, 3].copy(), T[:3, :3].copy(), grid_points, grid_range, sin_grazing(grid_points, grid_range))
+
+
+def sin_grazing(points: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Per pixel of a range image, the sine of the angle between the ray and the surface it hit.
+
+    The surface is spanned by the pixel's neighbours in azimuth (two columns away) and in ring, on
+    each axis the neighbour nearer in range (the same surface, more likely): its normal is their
+    cross product. A ray meeting a wall head-on gives 1; one skimming the road far ahead a few
+    hundredths.
+
+    Args:
+        points: (rings, bins, 3) nearest return per pixel, lidar frame (0 where none).
+        range_m: (rings, bins) its range, 0 where none.
+
+    Returns:
+        (rings, bins) float32 in [0, 1]; 1 where a neighbour on either axis is missing.
+    """
+    valid = range_m > 0.0
+
+    def tangent(before: np.ndarray, after: np.ndarray, ok_before: np.ndarray, ok_after: np.ndarray):
+        gap_before = np.where(ok_before, np.abs(np.linalg.norm(before, axis=-1) - range_m), np.inf)
+        gap_after = np.where(ok_after, np.abs(np.linalg.norm(after, axis=-1) - range_m), np.inf)
+        use_after = gap_after < gap_before
+        return np.where(use_after[..., None], after, before) - points, np.isfinite(np.minimum(gap_before, gap_after))
+
+    step = 2
+    along_azimuth, ok_azimuth = tangent(
+        np.roll(points, step, axis=1), np.roll(points, -step, axis=1), np.roll(valid, step, 1), np.roll(valid, -step, 1)
+    )
+    below = np.concatenate([points[:1], points[:-1]])
+    above = np.concatenate([points[1:], points[-1:]])
+    valid_below = np.concatenate([np.zeros_like(valid[:1]), valid[:-1]])
+    valid_above = np.concatenate([valid[1:], np.zeros_like(valid[:1])])
+    along_ring, ok_ring = tangent(below, above, valid_below, valid_above)
+    normal = np.cross(along_azimuth, along_ring)
+    norm = np.linalg.norm(normal, axis=-1) * np.maximum(range_m, 1e-9)
+    sine = np.abs(np.einsum("rbk,rbk->rb", normal, points)) / np.maximum(norm, 1e-12)
+    known = valid & ok_azimuth & ok_ring & (norm > 1e-12)
+    return np.where(known, np.clip(sine, 0.0, 1.0), 1.0).astype(np.float32)
 
 
 def _azimuth_bin(points: np.ndarray, n_bins: int) -> np.ndarray:
@@ -147,6 +192,7 @@ class ProbeStack:
         self.R_world_lidar = np.tile(np.eye(3), (n_slots, 1, 1))
         self.points_lidar = np.zeros((n_slots, n_rings, n_bins, 3), np.float32)
         self.range_m = np.zeros((n_slots, n_rings, n_bins), np.float32)
+        self.sin_grazing = np.ones((n_slots, n_rings, n_bins), np.float32)
 
     @classmethod
     def of(cls, probes: list[SweepProbe]) -> ProbeStack:
@@ -163,6 +209,7 @@ class ProbeStack:
         self.R_world_lidar[slot] = probe.R_world_lidar
         self.points_lidar[slot] = probe.points_lidar
         self.range_m[slot] = probe.range_m
+        self.sin_grazing[slot] = probe.sin_grazing
 
 
 def voxel_evidence(
@@ -174,6 +221,13 @@ def voxel_evidence(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hits and misses of each voxel centroid over the probes in ``slots`` of ``stack`` (see the
     module docstring).
+
+    A ray sees through a voxel when it returns beyond it by more than ``range_margin_m`` and, with
+    ``grazing_slack``, by more than the slack of the surface it hit: a voxel on that surface, offset
+    from the ray by up to ``pass_tolerance_m`` plus the pose's angular error (``pose_angle_deg``)
+    times the range, lies up to ``offset / sin(grazing angle)`` before the return along the ray (the
+    probe's :attr:`SweepProbe.sin_grazing`). So the road a ray skims, or a facade it runs along, is
+    not seen through; what stood higher above that surface than the offset is.
 
     Args:
         centroids_world: (V,3) voxel centroids, world frame.
@@ -204,8 +258,13 @@ def voxel_evidence(
     along = (x * flat[3 * pixel] + y * flat[3 * pixel + 1] + z * flat[3 * pixel + 2]) / np.maximum(return_m, 1e-9)
     passes = (return_m > 0.0) & (rho > margin) & (rho <= config.max_range_m)
     passes &= rho * rho - along * along < config.pass_tolerance_m**2
+    beyond: float | np.ndarray = margin
+    if config.grazing_slack:
+        offset = config.pass_tolerance_m + along * np.tan(np.deg2rad(config.pose_angle_deg))
+        sine = stack.sin_grazing.reshape(-1)[pixel].astype(np.float64)
+        beyond = np.maximum(margin, offset / np.maximum(sine, 1e-3))
     voxel = np.tile(np.arange(n_voxels), slots.size)
-    misses = np.bincount(voxel[passes & (return_m > along + margin)], minlength=n_voxels)
+    misses = np.bincount(voxel[passes & (return_m > along + beyond)], minlength=n_voxels)
     hits = np.bincount(voxel[passes & (np.abs(return_m - along) <= margin)], minlength=n_voxels)
     return hits, misses
 
@@ -256,13 +315,14 @@ class DynamicFilter:
         """Take the next sweep; returns the sweeps whose window is now complete (oldest first)."""
         index = self._n_added
         self._n_added += 1
-        self._sweeps.append((index, sweep))
         if index % self.config.probe_every == 0:
             self._ground.note(sweep.points_world)
             slot = self._n_probes % self._probe_slots
             self._stack.put(slot, SweepProbe.of(sweep, len(self._elevation_rad), self._n_bins))
             self._slot_sweep[slot] = index
             self._n_probes += 1
+        # Waiting for its window it needs only its world points: the lidar frame ones go (half the memory).
+        self._sweeps.append((index, dataclasses.replace(sweep, points_lidar=_NO_POINTS, ring=_NO_RINGS)))
         decided = []
         while self._sweeps and self._sweeps[0][0] + self.config.window_scans <= index:
             decided.append(self._decide())

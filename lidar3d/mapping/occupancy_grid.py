@@ -236,8 +236,10 @@ class OccupancyGridBuilder:
         self._mark = np.full(self._log_odds.size, -1, np.int32)
         self._n_sweeps = 0
 
-    def add(self, origin_world: np.ndarray, points_world: np.ndarray) -> None:
-        """Ray cast one sweep: sensor position (3,) and its (N,3) points, world frame."""
+    def add(self, origin_world: np.ndarray, points_world: np.ndarray, on_ground: np.ndarray | None = None) -> None:
+        """Ray cast one sweep: sensor position (3,) and its (N,3) points, world frame; ``on_ground``
+        (N,) bool marks the points the segmentation called ground: never obstacles (their beams
+        still free the band before them)."""
         p = self.params
         ground = self.ground
         low, high = p.band_m
@@ -249,6 +251,7 @@ class OccupancyGridBuilder:
         length = np.hypot(delta[:, 0], delta[:, 1])
         ok = (length > p.resolution_m) & (length <= p.max_range_m)
         points_world, delta, length = points_world[ok], delta[ok], length[ok]
+        not_ground = np.ones(len(points_world), bool) if on_ground is None else ~np.asarray(on_ground, bool)[ok]
         h0 = float(origin_world[2] - ground.height_at(origin_world[None, :2])[0])
         h1 = points_world[:, 2] - ground.height_at(points_world[:, :2])
         # Where along the beam (fraction s of its length) its height above ground is in the band.
@@ -264,7 +267,7 @@ class OccupancyGridBuilder:
         end_free = length - p.resolution_m  # the last cell before the point is free at most
         free_from = s_enter * length
         free_to = np.minimum(s_leave * length, end_free)
-        occupied = (h1 >= low) & (h1 <= high)
+        occupied = (h1 >= low) & (h1 <= high) & not_ground
         # The nearest obstacle in the band ends the free space of its azimuth: beams that pass over a
         # car or a low wall say nothing about the band below them.
         blocked_at = np.where(occupied, end_free, np.inf)
