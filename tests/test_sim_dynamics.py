@@ -301,8 +301,9 @@ def test_default_parameters_reproduce_the_old_simulation():
     sim = Simulation("loop", duration_s=3.0)
     scan = sim.scan(5).scan
     assert len(scan) == 27269
+    # 1e-6, not closer: ray casting differs in the last bits between library builds (2e-8 seen).
     np.testing.assert_allclose(
-        scan.points.sum(axis=0), [-12424.37866424915, 27495.9515537361, 14169.772319129794], rtol=1e-9
+        scan.points.sum(axis=0), [-12424.37866424915, 27495.9515537361, 14169.772319129794], rtol=1e-6
     )
     assert float(scan.intensity.sum()) == 731591.0
     np.testing.assert_allclose(
