@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from lidar3d.config import MotionConfig
-from lidar3d.mapping.odometry import _marginal_yaw_information, step_yaw_information
+from lidar3d.mapping.odometry import OdometryStep, _marginal_yaw_information
 from lidar3d.mapping.registration import PlaneMap, PosePrior, _xyz_rpy, solve_pose
 from lidar3d.mapping.se3 import exp_se3
 from lidar3d.mapping.tracker import _fused
@@ -71,12 +71,17 @@ def test_a_step_that_travelled_far_knows_its_yaw_less() -> None:
     sigma of about 1 deg (half its travel); no rows on the yaw, nothing."""
     information = np.zeros((6, 6))
     information[5, 5] = np.radians(0.02) ** -2
-    near = step_yaw_information(information, np.radians(0.02), 0.5)
-    far = step_yaw_information(information, np.radians(2.0), 0.5)
+
+    def step(edge_information: np.ndarray | None, travel_rad: float) -> OdometryStep:
+        return OdometryStep(np.eye(4), False, 100, 100, True, edge_information, travel_rad)
+
+    near = step(information, np.radians(0.02)).yaw_information(0.5)
+    far = step(information, np.radians(2.0)).yaw_information(0.5)
     assert near == pytest.approx(1.0 / (np.radians(0.02) ** 2 + np.radians(0.01) ** 2))
     assert np.degrees(far**-0.5) == pytest.approx(1.0, abs=0.01)
-    assert step_yaw_information(np.zeros((6, 6)), 0.1, 0.5) == 0.0
-    assert step_yaw_information(information, np.radians(2.0), 0.0) == pytest.approx(information[5, 5])
+    assert step(np.zeros((6, 6)), 0.1).yaw_information(0.5) == 0.0
+    assert step(None, 0.1).yaw_information(0.5) == 0.0
+    assert step(information, np.radians(2.0)).yaw_information(0.0) == pytest.approx(information[5, 5])
 
 
 def test_registration_takes_the_yaw_the_submap_leaves_free_from_the_heading() -> None:

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.features.records import FeatureSet
-from lidar3d.mapping.registration import solve_pose
+from lidar3d.mapping.registration import _wrapped_difference, solve_pose
 from lidar3d.mapping.ring_matching import RingIndexedCloud
+from lidar3d.mapping.se3 import xyz_rpy_from_pose
 
-__all__ = ["OdometryStep", "ScanToScanOdometry", "step_yaw_information"]
+__all__ = ["OdometryStep", "ScanToScanOdometry"]
 
 PLANAR_AXES = (2, 3, 4)  # z, roll, pitch
 EDGE_AXES = (0, 1, 5)  # x, y, yaw
@@ -37,12 +38,9 @@ class OdometryStep:
         planar_rows / edge_rows: residual rows used by each step.
         edge_observed: the edge step ran and none of x, y, yaw was degenerate (so the step is
             a measurement of the horizontal motion, not the motion-model guess carried along).
-        yaw_information: how much the step knows (rad^-2) about the yaw of ``T_prev_curr``; 0
-            when the edge step did not run. Its variance is the edge rows' (``J^T W J / sigma^2``
-            marginalised over x and y) plus ``(heading_shortfall * travel)^2``, ``travel`` the yaw
-            the step moved from its guess: Gauss-Newton from a guess far off (the motion before a
-            sharp turn, on ``blind_turn`` 3 deg a scan) can stop short in a flat stretch of the
-            cost, by a share of the way that the rows' curvature at the end does not show.
+        edge_information: (6,6) the edge step's rows' information (``J^T W J / sigma^2`` over
+            ``[tx, ty, tz, roll, pitch, yaw]``, free axes x, y, yaw); None when it did not run.
+        yaw_travel_rad: the yaw the edge step moved from its guess (wrapped to [-pi, pi)).
     """
 
     T_prev_curr: np.ndarray
@@ -50,7 +48,21 @@ class OdometryStep:
     planar_rows: int
     edge_rows: int
     edge_observed: bool = False
-    yaw_information: float = 0.0
+    edge_information: np.ndarray | None = None
+    yaw_travel_rad: float = 0.0
+
+    def yaw_information(self, shortfall: float) -> float:
+        """How much the step knows about its yaw (rad^-2): the inverse of the edge rows' yaw
+        variance (marginalised over x and y) plus ``(shortfall * yaw_travel_rad)^2``. Gauss-Newton
+        from a guess far off (the motion before a sharp turn, on ``blind_turn`` 3 deg a scan) can
+        stop short in a flat stretch of the cost, by a share of the way that the rows' curvature at
+        the end does not show. 0 when the edge step did not run or its rows hold no yaw."""
+        if self.edge_information is None:
+            return 0.0
+        rows_information = _marginal_yaw_information(self.edge_information)
+        if rows_information <= 0.0:
+            return 0.0
+        return 1.0 / (1.0 / rows_information + (shortfall * self.yaw_travel_rad) ** 2)
 
 
 class ScanToScanOdometry:
@@ -67,7 +79,6 @@ class ScanToScanOdometry:
         search_radius_m: float = 5.0,
         min_previous_edges: int = 10,
         min_previous_planes: int = 100,
-        heading_shortfall: float = 2.0,
     ) -> None:
         self.n_rings = n_rings
         self.max_iterations = max_iterations
@@ -77,7 +88,6 @@ class ScanToScanOdometry:
         self.search_radius_m = search_radius_m
         self.min_previous_edges = min_previous_edges
         self.min_previous_planes = min_previous_planes
-        self.heading_shortfall = heading_shortfall
         self._prev_edges: RingIndexedCloud | None = None
         self._prev_planes: RingIndexedCloud | None = None
 
@@ -124,30 +134,12 @@ class ScanToScanOdometry:
         )
         used_model = planar.iterations == 0 and edge.iterations == 0
         edge_observed = edge.iterations > 0 and edge.degenerate_axes == 0
-        yaw_information = 0.0
-        if edge.iterations > 0:
-            travel = _yaw(edge.T_target_source) - _yaw(T_guess)
-            yaw_information = step_yaw_information(edge.information, travel, self.heading_shortfall)
+        if edge.iterations == 0:
+            return OdometryStep(edge.T_target_source, used_model, planar.n_rows, edge.n_rows, edge_observed)
+        travel = _wrapped_difference(xyz_rpy_from_pose(edge.T_target_source), xyz_rpy_from_pose(T_guess))[5]
         return OdometryStep(
-            edge.T_target_source, used_model, planar.n_rows, edge.n_rows, edge_observed, yaw_information
+            edge.T_target_source, used_model, planar.n_rows, edge.n_rows, edge_observed, edge.information, float(travel)
         )
-
-
-def step_yaw_information(information: np.ndarray, travel_rad: float, shortfall: float) -> float:
-    """What a step knows about its yaw (rad^-2): the variance of the (6,6) edge-step
-    ``information`` over ``[tx, ty, tz, roll, pitch, yaw]`` (free axes x, y, yaw) about the yaw,
-    marginalised over x and y, plus ``(shortfall * travel_rad)^2`` for the yaw it moved from its
-    guess (see :attr:`OdometryStep.yaw_information`); 0 when the rows hold no yaw."""
-    rows_information = _marginal_yaw_information(information)
-    if rows_information <= 0.0:
-        return 0.0
-    travel = (travel_rad + np.pi) % (2.0 * np.pi) - np.pi
-    return 1.0 / (1.0 / rows_information + (shortfall * travel) ** 2)
-
-
-def _yaw(T: np.ndarray) -> float:
-    """Yaw (rad) of the (4,4) pose's rotation ``Rz(yaw) Ry(pitch) Rx(roll)``."""
-    return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
 def _marginal_yaw_information(information: np.ndarray) -> float:

@@ -170,9 +170,9 @@ class Tracker:
             search_radius_m=odo.search_radius_m,
             min_previous_edges=odo.min_previous_edges,
             min_previous_planes=odo.min_previous_planes,
-            heading_shortfall=odo.heading_shortfall,
         )
         self._fuse_heading = odo.fuse_heading
+        self._heading_shortfall = odo.heading_shortfall
         self._submap = submap
         self._motion = MotionModel()
         self._latest: _Latest | None = None
@@ -310,7 +310,7 @@ class Tracker:
         if self._motion.established:
             at_reference = self._motion.prior(previous.T_world_reference, reference_dt_s, self._vehicle)
             prior = _moved_prior(at_reference, -offset_s, twist)
-        heading = _odometry_heading(T_world_lidar, step) if self._fuse_heading else None
+        heading = _odometry_heading(T_world_lidar, step, self._heading_shortfall) if self._fuse_heading else None
         fused = _fused(prior, heading, T_world_lidar, self._vehicle)
         refined = self._register(deskewed, T_world_lidar, self._mapping.max_iterations, fused, prior is not None)
         if refined.iterations == 0:
@@ -338,19 +338,20 @@ class Tracker:
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
 
 
-def _odometry_heading(T_world_guess: np.ndarray, step: OdometryStep) -> PosePrior | None:
+def _odometry_heading(T_world_guess: np.ndarray, step: OdometryStep, shortfall: float) -> PosePrior | None:
     """The scan-to-scan odometry's yaw as a belief about the scan's pose: the (4,4) guess it gave
-    (the previous pose moved by the step), informative about the yaw only, by the edge step's own
-    information; None when the step measured no yaw.
+    (the previous pose moved by the step), informative about the yaw only, by
+    :meth:`OdometryStep.yaw_information` with ``shortfall``; None when the step measured no yaw.
 
     The scan-to-submap rows alone hold the pose to the submap, which was built from the estimated
     poses: a heading error the submap shares is invisible to them, and on ``blind_turn`` (seed 1)
     such an error grew at 0.5 deg/s from the first scans (the map bent with it) while the
     scan-to-scan yaw, measured against the previous sweep alone, stayed within 0.03 deg/s."""
-    if step.used_motion_model or step.yaw_information <= 0.0:
+    yaw_information = step.yaw_information(shortfall)
+    if step.used_motion_model or yaw_information <= 0.0:
         return None
     information = np.zeros((6, 6))
-    information[5, 5] = step.yaw_information
+    information[5, 5] = yaw_information
     return PosePrior(T_world_guess, information)
 
 
