@@ -425,7 +425,12 @@ class HealthConfig:
     direction when its registration also took none from the prior. After ``degraded_after_m`` of
     travel with some direction dead-reckoned the scans are ``degraded``; after ``lost_after_m`` of
     travel with the pose not observed they are ``lost``; ``degraded_after_m`` of fully observed
-    travel clears both.
+    travel clears both. Besides, a scan is ``degraded`` while the refined trajectory and the
+    scan-to-scan odometry parted over the last ``consistency_window_m``, in heading or in distance
+    along the steps, by more than ``max_consistency_z`` standard deviations of the odometry's own
+    (its rows', and the floors ``heading_sigma_floor_deg`` and ``along_sigma_floor_m``); a difference
+    in the direction the odometry moved from its guess, up to ``travel_share`` of that move, is put
+    down to the odometry stopping short.
     """
 
     residual_sigma_m: float = _key(
@@ -442,6 +447,21 @@ class HealthConfig:
         2.0, _positive(1e5, "m"), "travel with a direction dead-reckoned before degraded (as much observed clears it)"
     )
     lost_after_m: float = _key(10.0, _positive(1e6, "m"), "travel with the pose not observed before scans are lost")
+    consistency_window_m: float = _key(
+        20.0, _positive(1e4, "m"), "travel over which the refined steps are compared with the odometry's"
+    )
+    max_consistency_z: float = _key(
+        4.0, _positive(1e6), "heading or distance parted by more standard deviations than this: degraded"
+    )
+    heading_sigma_floor_deg: float = _key(
+        0.3, _closed(0.0, 90.0, "deg"), "std added to the window's heading difference (the refined poses' own noise)"
+    )
+    along_sigma_floor_m: float = _key(
+        0.15, _closed(0.0, 100.0, "m"), "std added to the window's along-track difference (the same)"
+    )
+    travel_share: float = _key(
+        1.0, _closed(0.0, 100.0), "a difference the way the odometry moved, up to this share of its move, is its shortfall"
+    )
 
 
 _GEODETIC_NAMES = ("latitude_deg", "longitude_deg", "height_ellipsoid_m")

@@ -137,6 +137,80 @@ def test_lost_after_must_not_be_below_degraded_after():
         config_with(Config(), {"health": {"lost_after_m": 1.0}})
 
 
+# The window tests' arithmetic uses a 10 m window and floors of 0.1 deg and 0.05 m.
+WINDOW = dataclasses.replace(CONFIG, consistency_window_m=10.0, heading_sigma_floor_deg=0.1, along_sigma_floor_m=0.05)
+
+
+def heading(difference_deg: float, sigma_deg: float = 0.02, **changes) -> ScanMeasures:
+    """A fully observed scan whose refined yaw step is ``difference_deg`` off the odometry's."""
+    return measures(
+        heading_difference_rad=np.radians(difference_deg), odometry_yaw_sigma_rad=np.radians(sigma_deg), **changes
+    )
+
+
+def test_a_steady_heading_pull_flags_degraded_once_it_exceeds_the_odometrys_uncertainty():
+    # 0.05 deg a scan (blind_turn seed 1's pull), odometry sigma 0.02 deg a scan, 0.5 m steps: over
+    # The 10 m window holds 20 scans: with n pulled scans in it z = 0.05 n / sqrt(0.02^2 20 + 0.1^2),
+    # above 4 from n = 11: the 11th pulled scan, until the 9th scan after the pull ended.
+    health = assess_all([heading(0.0)] * 30 + [heading(-0.05)] * 40 + [heading(0.0)] * 30, WINDOW)
+    z = [h.heading_z for h in health]
+    assert max(z[:30]) == 0.0
+    assert z[40] == pytest.approx(0.05 * 11 / np.hypot(0.02 * np.sqrt(20), 0.1))
+    assert flags(health) == "o" * 40 + "d" * 39 + "o" * 21
+    assert all(h.dead_reckoned_m == 0.0 for h in health)  # the flag is the heading's alone
+    # The same pull within what the odometry does not know is no evidence.
+    assert set(flags(assess_all([heading(-0.05, sigma_deg=0.5)] * 60, WINDOW))) == {"o"}
+
+
+def test_heading_noise_within_the_stated_uncertainty_rarely_flags():
+    rng = np.random.default_rng(3)
+    differences = rng.normal(0.0, 0.03, 4000)  # odometry sigma 0.03 deg a scan, as stated
+    health = assess_all([heading(d, sigma_deg=0.03) for d in differences], WINDOW)
+    assert max(h.heading_z for h in health) < CONFIG.max_consistency_z
+    # A pull of 0.05 deg a scan on the same noise is found within the window (z about 6).
+    pulled = assess_all([heading(d - 0.05, sigma_deg=0.03) for d in differences[:200]], WINDOW)
+    assert np.mean([h.flag is HealthFlag.DEGRADED for h in pulled[40:]]) > 0.9
+
+
+def test_scans_without_an_odometry_yaw_add_nothing_and_the_window_is_travel():
+    unmeasured = heading(5.0, sigma_deg=np.inf)
+    assert set(flags(assess_all([unmeasured] * 50, WINDOW))) == {"o"}
+    # Standing still (no travel) keeps the window: the pull at a stop still adds up.
+    still = heading(-0.05, step_m=0.0)
+    health = assess_all([heading(0.0)] * 25 + [still] * 40, WINDOW)
+    assert health[-1].flag is HealthFlag.DEGRADED
+    assert health[-1].heading_z == pytest.approx(0.05 * 40 / np.hypot(0.02 * np.sqrt(60), 0.1))
+    strict = dataclasses.replace(CONFIG, consistency_window_m=1.0, heading_sigma_floor_deg=0.0)
+    short = assess_all([heading(-0.05)] * 10, strict)  # 1 m: the last two scans
+    assert short[-1].heading_z == pytest.approx(0.1 / (0.02 * np.sqrt(2)))
+
+
+def test_steps_shorter_than_the_odometrys_flag_through_the_along_track_window():
+    # Each refined step 24 mm shorter than the odometry's (blind_turn seed 1's), odometry sigma
+    # 10 mm a step: with n short steps among the window's 20, z = 0.024 n / sqrt(0.01^2 20 + 0.05^2),
+    # above 4 from n = 12.
+    short = measures(along_difference_m=-0.024, odometry_along_sigma_m=0.01)
+    health = assess_all([measures(odometry_along_sigma_m=0.01)] * 30 + [short] * 30, WINDOW)
+    assert [h.flag for h in health].index(HealthFlag.DEGRADED) == 30 + 11
+    assert health[-1].along_z == pytest.approx(0.024 * 20 / np.hypot(0.01 * np.sqrt(20), 0.05))
+    assert all(h.heading_z == 0.0 for h in health)
+    # Unobserved along-track (inf sigma) is no evidence.
+    assert set(flags(assess_all([measures(along_difference_m=-0.5)] * 60, WINDOW))) == {"o"}
+    # Braking: the constant-velocity guess ran 50 mm long, the odometry moved back 20 mm of it and
+    # its step stays 30 mm longer than the refined one. Up to travel_share (1) of the 20 mm it moved
+    # is put down to its stopping short: 10 mm a step remain, z = 0.2 / sqrt(20 0.01^2 + 0.05^2) = 3.
+    braking = measures(along_difference_m=-0.03, odometry_along_sigma_m=0.01, odometry_along_travel_m=-0.02)
+    health = assess_all([braking] * 40, WINDOW)
+    assert health[-1].along_z == pytest.approx(0.2 / np.sqrt(20 * 1e-4 + 0.05**2))
+    assert set(flags(health)) == {"o"}
+    assert assess_all([braking] * 40, dataclasses.replace(WINDOW, travel_share=0.0))[-1].flag is HealthFlag.DEGRADED
+    # The other way round (blind_turn seed 1): the guess came from the short refined steps, the
+    # odometry moved 20 mm forward from it and the refined step is 30 mm shorter: nothing is put
+    # down to a shortfall, z = 0.6 / sqrt(0.002 + 0.0025) = 8.9.
+    biased = measures(along_difference_m=-0.03, odometry_along_sigma_m=0.01, odometry_along_travel_m=0.02)
+    assert assess_all([biased] * 40, WINDOW)[-1].along_z == pytest.approx(0.6 / np.sqrt(20 * 1e-4 + 0.05**2))
+
+
 # -- the adapter from the tracker ---------------------------------------------------------------------
 
 
@@ -147,7 +221,17 @@ class _Posed:
     T_world_odom: np.ndarray
 
 
-def _track(T_world_lidar, T_world_odom, registration, *, twist=None, stamp_ns=S // 10, prior=None) -> TrackResult:
+def _track(
+    T_world_lidar,
+    T_world_odom,
+    registration,
+    *,
+    twist=None,
+    stamp_ns=S // 10,
+    prior=None,
+    yaw_sigma=np.inf,
+    xy_covariance=None,
+) -> TrackResult:
     return TrackResult(
         stamp_ns=stamp_ns,
         T_world_lidar=T_world_lidar,
@@ -159,6 +243,8 @@ def _track(T_world_lidar, T_world_odom, registration, *, twist=None, stamp_ns=S 
         deskew_twist=np.zeros(6) if twist is None else twist,
         settled=None,
         timings_ms={},
+        odometry_yaw_sigma_rad=yaw_sigma,
+        odometry_xy_covariance_m2=xy_covariance,
     )
 
 
@@ -168,8 +254,14 @@ def test_measures_of_a_tracked_scan():
     odometry = pose_from_xyz_rpy(np.array([1.1, 0.0, 0.0, 0.0, 0.0, np.radians(0.5)]))  # 0.1 m and 0.5 deg off
     registration = SolveResult(refined, 5, True, 1234, 1, 100.0)
     twist = np.array([9.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 0.9 m in 0.1 s: 0.1 m short
-    m = scan_measures(_track(refined, odometry, registration, twist=twist), previous, CONFIG)
+    xy_covariance = np.diag([0.02**2, 0.05**2])  # along x (the step's direction): 2 cm
+    track = _track(refined, odometry, registration, twist=twist, yaw_sigma=0.001, xy_covariance=xy_covariance)
+    m = scan_measures(track, previous, CONFIG)
     assert m.registered and m.n_rows == 1234 and m.prior_axes == 1
+    assert m.heading_difference_rad == pytest.approx(np.radians(-0.5)) and m.odometry_yaw_sigma_rad == 0.001
+    assert m.along_difference_m == pytest.approx(-0.1) and m.odometry_along_sigma_m == pytest.approx(0.02)
+    assert m.odometry_along_travel_m == 0.0
+    assert scan_measures(_track(refined, odometry, registration), previous, CONFIG).odometry_along_sigma_m == np.inf
     assert m.weakest_sigma_m == pytest.approx(CONFIG.residual_sigma_m / 10.0)
     assert m.step_m == pytest.approx(1.0)
     assert m.odometry_disagreement_m == pytest.approx(0.1 + CONFIG.lever_m * np.radians(0.5))
@@ -194,7 +286,8 @@ def test_prior_axes_count_the_axes_the_motion_prior_decided():
 def test_measures_without_registration_or_previous_scan():
     m = scan_measures(_track(np.eye(4), np.eye(4), None), None, CONFIG)
     assert not m.registered and m.weakest_sigma_m == np.inf and m.prior_axes == 6 and m.n_rows == 0
-    assert m.step_m == m.odometry_disagreement_m == m.prediction_offset_m == 0.0
+    assert m.step_m == m.odometry_disagreement_m == m.prediction_offset_m == m.heading_difference_rad == 0.0
+    assert m.odometry_yaw_sigma_rad == m.odometry_along_sigma_m == np.inf and m.along_difference_m == 0.0
     assert not m.observes_pose(CONFIG)
 
 
@@ -285,10 +378,13 @@ def test_health_csv_round_trip(tmp_path):
         ("a,b\n", r"not a health table"),
         (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", rf"health\.csv:2: 3 columns, expected {len(HEALTH_COLUMNS)}"),
         (
-            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0,1\n",
+            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0\n",
             r"health\.csv:2: flag 'fine' is not one of",
         ),
-        (",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1\n", r"health\.csv:2: 'yes' is not 0 or 1"),
+        (
+            ",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0\n",
+            r"health\.csv:2: 'yes' is not 0 or 1",
+        ),
     ],
 )
 def test_a_malformed_health_csv_names_the_file_and_line(tmp_path, text, message):

@@ -65,6 +65,21 @@ def test_marginal_yaw_information_is_the_schur_complement() -> None:
     assert _marginal_yaw_information(information) == pytest.approx(1.0 / np.linalg.inv(h_y_yaw)[1, 1])
 
 
+def test_xy_covariance_is_the_marginal_of_the_edge_rows() -> None:
+    rng = np.random.default_rng(4)
+    J = rng.normal(size=(50, 3))
+    h = J.T @ J
+    information = np.zeros((6, 6))
+    information[np.ix_([0, 1, 5], [0, 1, 5])] = h
+    observed = OdometryStep(np.eye(4), False, 100, 50, True, information, 0.0)
+    covariance = observed.xy_covariance()
+    assert covariance is not None
+    np.testing.assert_allclose(covariance, np.linalg.inv(h)[:2, :2])
+    # A degenerate edge step (edge_observed False) or none at all observes no translation.
+    assert OdometryStep(np.eye(4), False, 100, 50, False, information, 0.0).xy_covariance() is None
+    assert OdometryStep(np.eye(4), False, 100, 0).xy_covariance() is None
+
+
 def test_a_step_that_travelled_far_knows_its_yaw_less() -> None:
     """Rows at sigma 0.02 deg: a step that moved 0.02 deg from its guess keeps nearly their
     information; one that had to turn 2 deg (a sharp turn its guess did not know) is worth a

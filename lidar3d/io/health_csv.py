@@ -6,7 +6,11 @@ degraded / lost), ``observed`` (0/1: the scan observed every direction of its po
 observed, since the pose was last fully observed), then the scan's measures: ``registered``,
 ``motion_model_only`` (0/1), ``rows``, ``prior_axes``, ``weakest_sigma_m`` (``inf`` when the
 registration did not run), ``step_m``, ``odometry_disagreement_m``, ``prediction_offset_m``, ``probe_share`` (0 when the
-registration did not run). See
+registration did not run), ``heading_difference_deg`` (the refined step's yaw minus the odometry
+step's), ``odometry_yaw_sigma_deg`` (``inf`` when the odometry measured no yaw),
+``odometry_yaw_travel_deg`` (the yaw the odometry moved from its guess), ``along_difference_m``,
+``odometry_along_sigma_m`` and ``odometry_along_travel_m`` (the same along the step), ``heading_z``
+and ``along_z`` (how far the two parted over ``health.consistency_window_m``, in standard deviations). See
 :mod:`lidar3d.mapping.health` for what each means.
 """
 
@@ -41,6 +45,14 @@ HEALTH_COLUMNS = (
     "odometry_disagreement_m",
     "prediction_offset_m",
     "probe_share",
+    "heading_difference_deg",
+    "odometry_yaw_sigma_deg",
+    "odometry_yaw_travel_deg",
+    "along_difference_m",
+    "odometry_along_sigma_m",
+    "odometry_along_travel_m",
+    "heading_z",
+    "along_z",
 )
 
 
@@ -76,6 +88,14 @@ def write_health_csv(path: str | Path, scan_indices: Sequence[int] | np.ndarray,
                 _number(m.odometry_disagreement_m),
                 _number(m.prediction_offset_m),
                 _number(m.probe_share),
+                _number(np.degrees(m.heading_difference_rad)),
+                _number(np.degrees(m.odometry_yaw_sigma_rad)),
+                _number(np.degrees(m.odometry_yaw_travel_rad)),
+                _number(m.along_difference_m),
+                _number(m.odometry_along_sigma_m),
+                _number(m.odometry_along_travel_m),
+                _number(h.heading_z),
+                _number(h.along_z),
             )
         )
     write_text_atomic(path, buffer.getvalue())
@@ -105,6 +125,12 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         odometry_disagreement_m=float(row["odometry_disagreement_m"]),
         prediction_offset_m=float(row["prediction_offset_m"]),
         probe_share=float(row["probe_share"]),
+        heading_difference_rad=float(np.radians(float(row["heading_difference_deg"]))),
+        odometry_yaw_sigma_rad=float(np.radians(float(row["odometry_yaw_sigma_deg"]))),
+        odometry_yaw_travel_rad=float(np.radians(float(row["odometry_yaw_travel_deg"]))),
+        along_difference_m=float(row["along_difference_m"]),
+        odometry_along_sigma_m=float(row["odometry_along_sigma_m"]),
+        odometry_along_travel_m=float(row["odometry_along_travel_m"]),
     )
     health = ScanHealth(
         stamp_ns=int(row["stamp_ns"]),
@@ -113,6 +139,8 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         dead_reckoned_m=float(row["dead_reckoned_m"]),
         blind_m=float(row["blind_m"]),
         flag=_flag(row["flag"]),
+        heading_z=float(row["heading_z"]),
+        along_z=float(row["along_z"]),
     )
     return int(row["scan"]), health
 

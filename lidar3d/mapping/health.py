@@ -27,11 +27,33 @@ adds its step length, ``degraded_after_m`` of fully observed travel in a row cle
 is ``degraded`` from ``dead_reckoned_m >= degraded_after_m`` (dead-reckoned along some direction for
 a while) and ``lost`` from ``blind_m >= lost_after_m`` (not observed for long), so a single noisy
 scan never flags and a standstill (no travel) never accumulates.
+
+**Consistency with the odometry over a window.** A scan-to-submap registration that is well
+observed on every direction can still be biased: the submap is built from the trajectory's own
+poses, and a small one-signed pull per scan bends and shortens map and trajectory together
+(``blind_turn`` seed 1: each step 24 mm short and -0.04 deg turned, 35 deg in a minute, every scan
+"observed"). The scan-to-scan odometry sees only the previous sweep, so it does not follow the
+bent map. Two differences of the refined step from the odometry step are kept per scan: the yaw
+``d_k``, with the odometry's yaw standard deviation ``s_k`` from its edge rows
+(:meth:`~lidar3d.mapping.odometry.OdometryStep.yaw_information`), and the translation along the
+step's direction, with the odometry's standard deviation there
+(:meth:`~lidar3d.mapping.odometry.OdometryStep.xy_covariance`). Gauss-Newton from a guess far off
+stops short of the optimum by a share of the way that its rows' curvature does not show (the
+entry of a sharp turn; braking, where the constant-velocity guess runs long): a difference in the
+direction the odometry moved from its guess, up to ``travel_share`` of that move, is put down to
+it and left out. A difference against that direction is not: the odometry moved away from a
+guess that the biased trajectory itself predicted. Over the last
+``consistency_window_m`` of travel each gives ``z = |sum d_k| / sqrt(sum s_k^2 + floor^2)``, the
+floor (``heading_sigma_floor_deg``, ``along_sigma_floor_m``) standing for the refined poses' own
+noise at the window's ends (the sums telescope). Either ``z > max_consistency_z`` flags the scan
+degraded: one of the two estimates drifted, and nothing else tells which. A scan whose odometry
+did not observe a quantity adds nothing to its sum.
 """
 
 from __future__ import annotations
 
 import enum
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Protocol
@@ -83,6 +105,16 @@ class ScanMeasures:
             pulled back (:func:`~lidar3d.mapping.registration.probe_return_share`; below
             ``mapping.probe_observed_share`` that direction was taken as degenerate), 0 when the
             registration did not run, 1 when it was not probed.
+        heading_difference_rad: the refined step's yaw minus the odometry step's (wrapped), radians.
+        odometry_yaw_sigma_rad: standard deviation of the odometry step's yaw from its rows,
+            radians (inf: the odometry measured no yaw).
+        odometry_yaw_travel_rad: the yaw the odometry step moved from its guess, radians.
+        along_difference_m: the refined step's translation minus the odometry step's, along the
+            refined step's direction, metres (0 below 1 cm of travel).
+        odometry_along_sigma_m: standard deviation of the odometry step's translation along that
+            direction from its rows, metres (inf: not observed, or no travel).
+        odometry_along_travel_m: how far the odometry step moved from its guess along that
+            direction, metres.
     """
 
     registered: bool
@@ -94,6 +126,12 @@ class ScanMeasures:
     odometry_disagreement_m: float
     prediction_offset_m: float
     probe_share: float = 1.0
+    heading_difference_rad: float = 0.0
+    odometry_yaw_sigma_rad: float = np.inf
+    odometry_yaw_travel_rad: float = 0.0
+    along_difference_m: float = 0.0
+    odometry_along_sigma_m: float = np.inf
+    odometry_along_travel_m: float = 0.0
 
     def observes_pose(self, config: HealthConfig) -> bool:
         """The scan observed its pose: registered, observable enough and consistent with the odometry."""
@@ -123,6 +161,9 @@ class ScanHealth:
         blind_m: travel over scans that did not observe their pose (:meth:`ScanMeasures.observes_pose`)
             in the same time, metres.
         flag: ok, degraded or lost.
+        heading_z: how many standard deviations the refined and the odometry heading parted over
+            the last ``consistency_window_m`` (see the module docstring).
+        along_z: the same for the distance travelled along the steps.
     """
 
     stamp_ns: int
@@ -131,6 +172,8 @@ class ScanHealth:
     dead_reckoned_m: float
     blind_m: float
     flag: HealthFlag
+    heading_z: float = 0.0
+    along_z: float = 0.0
 
 
 class PosedScan(Protocol):
@@ -144,6 +187,14 @@ class PosedScan(Protocol):
 
     @property
     def T_world_odom(self) -> np.ndarray: ...
+
+
+_MIN_ALONG_STEP_M = 0.01  # below this the step has no direction to compare along
+
+
+def _yaw_rad(T: np.ndarray) -> float:
+    """The yaw (rad) of a (4,4) pose, ``atan2(R[1,0], R[0,0])``."""
+    return float(np.arctan2(T[1, 0], T[0, 0]))
 
 
 def _pose_difference_m(T_a: np.ndarray, T_b: np.ndarray, lever_m: float) -> float:
@@ -186,6 +237,8 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         if not np.isfinite(sigma_m):
             sigma_m = config.residual_sigma_m
         weakest_sigma_m = sigma_m / np.sqrt(max(registration.min_eigenvalue, 1e-300))
+    heading_difference_rad = along_difference_m = along_travel_m = 0.0
+    along_sigma_m = np.inf
     if previous is None:
         step_m = odometry_disagreement_m = prediction_offset_m = 0.0
     else:
@@ -194,6 +247,14 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         odometry_step = invert(previous.T_world_odom) @ track.T_world_odom
         step_m = float(np.linalg.norm(step[:3, 3]))
         odometry_disagreement_m = _pose_difference_m(step, odometry_step, config.lever_m)
+        heading_difference_rad = _yaw_rad(invert(odometry_step) @ step)
+        covariance = track.odometry_xy_covariance_m2
+        if step_m >= _MIN_ALONG_STEP_M:
+            direction = step[:3, 3] / step_m
+            along_difference_m = float(direction @ (step[:3, 3] - odometry_step[:3, 3]))
+            along_travel_m = float(direction[:2] @ track.odometry_xy_travel_m)
+            if covariance is not None:
+                along_sigma_m = float(np.sqrt(max(direction[:2] @ covariance @ direction[:2], 0.0)))
         prediction_offset_m = _pose_difference_m(step, exp_se3(track.deskew_twist * dt_s), config.lever_m)
     return ScanMeasures(
         registered=registered,
@@ -205,7 +266,76 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         odometry_disagreement_m=odometry_disagreement_m,
         prediction_offset_m=prediction_offset_m,
         probe_share=registration.probe_return_share if registration is not None else 0.0,
+        heading_difference_rad=heading_difference_rad,
+        odometry_yaw_sigma_rad=track.odometry_yaw_sigma_rad,
+        odometry_yaw_travel_rad=track.odometry_yaw_travel_rad,
+        along_difference_m=along_difference_m,
+        odometry_along_sigma_m=along_sigma_m,
+        odometry_along_travel_m=along_travel_m,
     )
+
+
+def _beyond_shortfall(difference: float, shortfall: float) -> float:
+    """The part of a refined-minus-odometry ``difference`` that the odometry stopping short of
+    its target cannot explain: a difference in the direction the odometry moved from its guess
+    (the sign of ``shortfall``), up to ``|shortfall|``, is put down to it."""
+    if difference * shortfall <= 0.0:
+        return difference
+    return float(np.sign(difference) * max(abs(difference) - abs(shortfall), 0.0))
+
+
+class _Channel:
+    """One difference summed over the window, with its variance."""
+
+    def __init__(self, floor: float) -> None:
+        self.floor_var = floor**2
+        self.difference = self.variance = 0.0
+
+    def add(self, difference: float, variance: float, sign: float = 1.0) -> None:
+        self.difference += sign * difference
+        self.variance += sign * variance
+
+    def z(self) -> float:
+        return abs(self.difference) / float(np.sqrt(max(self.variance, 0.0) + self.floor_var + 1e-30))
+
+
+class _ConsistencyWindow:
+    """The refined-minus-odometry heading and along-track distance summed over the last
+    ``config.consistency_window_m`` of travel, with the odometry's variances (module docstring)."""
+
+    def __init__(self, config: HealthConfig) -> None:
+        self._window_m = config.consistency_window_m
+        self._travel_share = config.travel_share
+        self.heading = _Channel(float(np.radians(config.heading_sigma_floor_deg)))
+        self.along = _Channel(config.along_sigma_floor_m)
+        self._entries: deque[tuple[float, float, float, float, float]] = deque()
+        self._travel_m = 0.0
+
+    def _entry(self, m: ScanMeasures) -> tuple[float, float, float, float, float]:
+        """``(step_m, yaw difference, its variance, along difference, its variance)``; a quantity
+        the odometry did not observe enters as 0, 0."""
+        yaw, yaw_var, along, along_var = 0.0, 0.0, 0.0, 0.0
+        if np.isfinite(m.odometry_yaw_sigma_rad):
+            yaw = _beyond_shortfall(m.heading_difference_rad, self._travel_share * m.odometry_yaw_travel_rad)
+            yaw_var = m.odometry_yaw_sigma_rad**2
+        if np.isfinite(m.odometry_along_sigma_m):
+            along = _beyond_shortfall(m.along_difference_m, self._travel_share * m.odometry_along_travel_m)
+            along_var = m.odometry_along_sigma_m**2
+        return m.step_m, yaw, yaw_var, along, along_var
+
+    def _apply(self, entry: tuple[float, float, float, float, float], sign: float) -> None:
+        self._travel_m += sign * entry[0]
+        self.heading.add(entry[1], entry[2], sign)
+        self.along.add(entry[3], entry[4], sign)
+
+    def add(self, measures: ScanMeasures) -> tuple[float, float]:
+        """Add a scan; returns the window's ``(heading_z, along_z)``."""
+        entry = self._entry(measures)
+        self._entries.append(entry)
+        self._apply(entry, 1.0)
+        while len(self._entries) > 1 and self._travel_m - self._entries[0][0] >= self._window_m:
+            self._apply(self._entries.popleft(), -1.0)
+        return self.heading.z(), self.along.z()
 
 
 class HealthMonitor:
@@ -220,6 +350,7 @@ class HealthMonitor:
         self._dead_reckoned_m = 0.0  # travel with some direction from the prior, since last fully observed
         self._blind_m = 0.0  # travel with the pose not observed, in the same time
         self._observed_m = 0.0  # fully observed travel in a row
+        self._consistency = _ConsistencyWindow(config)
 
     def assess(self, stamp_ns: int, measures: ScanMeasures) -> ScanHealth:
         """The health of the next scan (stamp ``stamp_ns``) from its measures."""
@@ -234,13 +365,15 @@ class HealthMonitor:
             self._dead_reckoned_m += measures.step_m
             if not measures.observes_pose(config):
                 self._blind_m += measures.step_m
+        heading_z, along_z = self._consistency.add(measures)
+        inconsistent = max(heading_z, along_z) > config.max_consistency_z
         if self._blind_m >= config.lost_after_m:
             flag = HealthFlag.LOST
-        elif self._dead_reckoned_m >= config.degraded_after_m:
+        elif self._dead_reckoned_m >= config.degraded_after_m or inconsistent:
             flag = HealthFlag.DEGRADED
         else:
             flag = HealthFlag.OK
-        return ScanHealth(stamp_ns, measures, observed, self._dead_reckoned_m, self._blind_m, flag)
+        return ScanHealth(stamp_ns, measures, observed, self._dead_reckoned_m, self._blind_m, flag, heading_z, along_z)
 
 
 def flag_stretches(flags: Sequence[HealthFlag], flag: HealthFlag) -> list[tuple[int, int]]:

@@ -13,7 +13,7 @@ previous stamp to the lidar at the current stamp. Correspondences use LOAM's rin
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -41,6 +41,7 @@ class OdometryStep:
         edge_information: (6,6) the edge step's rows' information (``J^T W J / sigma^2`` over
             ``[tx, ty, tz, roll, pitch, yaw]``, free axes x, y, yaw); None when it did not run.
         yaw_travel_rad: the yaw the edge step moved from its guess (wrapped to [-pi, pi)).
+        xy_travel_m: (2,) the x, y the step moved from its guess (previous scan's frame), metres.
     """
 
     T_prev_curr: np.ndarray
@@ -50,6 +51,7 @@ class OdometryStep:
     edge_observed: bool = False
     edge_information: np.ndarray | None = None
     yaw_travel_rad: float = 0.0
+    xy_travel_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
 
     def yaw_information(self, shortfall: float) -> float:
         """How much the step knows about its yaw (rad^-2): the inverse of the edge rows' yaw
@@ -63,6 +65,15 @@ class OdometryStep:
         if rows_information <= 0.0:
             return 0.0
         return 1.0 / (1.0 / rows_information + (shortfall * self.yaw_travel_rad) ** 2)
+
+    def xy_covariance(self) -> np.ndarray | None:
+        """(2,2) covariance (m^2) of the step's x, y (previous scan's frame) as its edge rows give
+        it, marginalised over the yaw; None when the edge step did not observe all of x, y, yaw."""
+        if self.edge_information is None or not self.edge_observed:
+            return None
+        free = list(EDGE_AXES)
+        covariance = np.linalg.inv(self.edge_information[np.ix_(free, free)])
+        return covariance[:2, :2]
 
 
 class ScanToScanOdometry:
@@ -138,7 +149,14 @@ class ScanToScanOdometry:
             return OdometryStep(edge.T_target_source, used_model, planar.n_rows, edge.n_rows, edge_observed)
         travel = _wrapped_difference(xyz_rpy_from_pose(edge.T_target_source), xyz_rpy_from_pose(T_guess))[5]
         return OdometryStep(
-            edge.T_target_source, used_model, planar.n_rows, edge.n_rows, edge_observed, edge.information, float(travel)
+            edge.T_target_source,
+            used_model,
+            planar.n_rows,
+            edge.n_rows,
+            edge_observed,
+            edge.information,
+            float(travel),
+            edge.T_target_source[:2, 3] - T_guess[:2, 3],
         )
 
 
