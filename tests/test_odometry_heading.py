@@ -51,12 +51,17 @@ def test_fused_yaw_difference_is_wrapped() -> None:
     assert abs(abs(np.degrees(_xyz_rpy(fused.T_target_source)[5])) - 180.0) < 1e-6
 
 
-def test_marginal_yaw_information_is_the_schur_complement() -> None:
-    rng = np.random.default_rng(3)
-    J = rng.normal(size=(50, 3))
+def _edge_information(seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """A random (3,3) ``J^T J`` over x, y, yaw and the (6,6) information holding it on those axes."""
+    J = np.random.default_rng(seed).normal(size=(50, 3))
     h = J.T @ J
     information = np.zeros((6, 6))
     information[np.ix_([0, 1, 5], [0, 1, 5])] = h
+    return h, information
+
+
+def test_marginal_yaw_information_is_the_schur_complement() -> None:
+    h, information = _edge_information(3)
     assert _marginal_yaw_information(information) == pytest.approx(1.0 / np.linalg.inv(h)[2, 2])
     # A corridor: nothing holds x; the yaw keeps what the rows say about it beside y.
     information[0, :] = 0.0
@@ -66,11 +71,7 @@ def test_marginal_yaw_information_is_the_schur_complement() -> None:
 
 
 def test_xy_covariance_is_the_marginal_of_the_edge_rows() -> None:
-    rng = np.random.default_rng(4)
-    J = rng.normal(size=(50, 3))
-    h = J.T @ J
-    information = np.zeros((6, 6))
-    information[np.ix_([0, 1, 5], [0, 1, 5])] = h
+    h, information = _edge_information(4)
     observed = OdometryStep(np.eye(4), False, 100, 50, True, information, 0.0)
     covariance = observed.xy_covariance()
     assert covariance is not None
