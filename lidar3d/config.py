@@ -460,7 +460,9 @@ class HealthConfig:
         0.15, _closed(0.0, 100.0, "m"), "std added to the window's along-track difference (the same)"
     )
     travel_share: float = _key(
-        1.0, _closed(0.0, 100.0), "a difference the way the odometry moved, up to this share of its move, is its shortfall"
+        1.0,
+        _closed(0.0, 100.0),
+        "a difference the way the odometry moved, up to this share of its move, is its shortfall",
     )
 
 

@@ -31,6 +31,7 @@ from lidar3d.mapping.health import (
     scan_measures,
     summarize_health,
 )
+from lidar3d.mapping.odometry import OdometryStep
 from lidar3d.mapping.registration import PosePrior, SolveResult
 from lidar3d.mapping.se3 import pose_from_xyz_rpy
 from lidar3d.mapping.tracker import TrackResult
@@ -229,8 +230,7 @@ def _track(
     twist=None,
     stamp_ns=S // 10,
     prior=None,
-    yaw_sigma=np.inf,
-    xy_covariance=None,
+    odometry_step=None,
 ) -> TrackResult:
     return TrackResult(
         stamp_ns=stamp_ns,
@@ -243,8 +243,7 @@ def _track(
         deskew_twist=np.zeros(6) if twist is None else twist,
         settled=None,
         timings_ms={},
-        odometry_yaw_sigma_rad=yaw_sigma,
-        odometry_xy_covariance_m2=xy_covariance,
+        odometry_step=odometry_step,
     )
 
 
@@ -254,13 +253,19 @@ def test_measures_of_a_tracked_scan():
     odometry = pose_from_xyz_rpy(np.array([1.1, 0.0, 0.0, 0.0, 0.0, np.radians(0.5)]))  # 0.1 m and 0.5 deg off
     registration = SolveResult(refined, 5, True, 1234, 1, 100.0)
     twist = np.array([9.0, 0.0, 0.0, 0.0, 0.0, 0.0])  # 0.9 m in 0.1 s: 0.1 m short
-    xy_covariance = np.diag([0.02**2, 0.05**2])  # along x (the step's direction): 2 cm
-    track = _track(refined, odometry, registration, twist=twist, yaw_sigma=0.001, xy_covariance=xy_covariance)
+    # The odometry's edge rows: 2 cm along x (the step's direction), 5 cm across, 0.001 rad of yaw;
+    # it moved 3 cm forward and 0.2 deg from its guess.
+    edge_information = np.diag([0.02**-2, 0.05**-2, 0.0, 0.0, 0.0, 0.001**-2])
+    step = OdometryStep(odometry, False, 300, 100, True, edge_information, np.radians(0.2), np.array([0.03, 0.0]))
+    track = _track(refined, odometry, registration, twist=twist, odometry_step=step)
     m = scan_measures(track, previous, CONFIG)
     assert m.registered and m.n_rows == 1234 and m.prior_axes == 1
-    assert m.heading_difference_rad == pytest.approx(np.radians(-0.5)) and m.odometry_yaw_sigma_rad == 0.001
+    assert m.heading_difference_rad == pytest.approx(np.radians(-0.5))
+    assert m.odometry_yaw_sigma_rad == pytest.approx(0.001) and m.odometry_yaw_travel_rad == pytest.approx(
+        np.radians(0.2)
+    )
     assert m.along_difference_m == pytest.approx(-0.1) and m.odometry_along_sigma_m == pytest.approx(0.02)
-    assert m.odometry_along_travel_m == 0.0
+    assert m.odometry_along_travel_m == pytest.approx(0.03)
     assert scan_measures(_track(refined, odometry, registration), previous, CONFIG).odometry_along_sigma_m == np.inf
     assert m.weakest_sigma_m == pytest.approx(CONFIG.residual_sigma_m / 10.0)
     assert m.step_m == pytest.approx(1.0)

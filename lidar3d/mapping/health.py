@@ -248,11 +248,12 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         step_m = float(np.linalg.norm(step[:3, 3]))
         odometry_disagreement_m = _pose_difference_m(step, odometry_step, config.lever_m)
         heading_difference_rad = _yaw_rad(invert(odometry_step) @ step)
-        covariance = track.odometry_xy_covariance_m2
-        if step_m >= _MIN_ALONG_STEP_M:
+        odometry = track.odometry_step
+        if step_m >= _MIN_ALONG_STEP_M and odometry is not None:
             direction = step[:3, 3] / step_m
             along_difference_m = float(direction @ (step[:3, 3] - odometry_step[:3, 3]))
-            along_travel_m = float(direction[:2] @ track.odometry_xy_travel_m)
+            along_travel_m = float(direction[:2] @ odometry.xy_travel_m)
+            covariance = odometry.xy_covariance()
             if covariance is not None:
                 along_sigma_m = float(np.sqrt(max(direction[:2] @ covariance @ direction[:2], 0.0)))
         prediction_offset_m = _pose_difference_m(step, exp_se3(track.deskew_twist * dt_s), config.lever_m)
@@ -267,8 +268,8 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         prediction_offset_m=prediction_offset_m,
         probe_share=registration.probe_return_share if registration is not None else 0.0,
         heading_difference_rad=heading_difference_rad,
-        odometry_yaw_sigma_rad=track.odometry_yaw_sigma_rad,
-        odometry_yaw_travel_rad=track.odometry_yaw_travel_rad,
+        odometry_yaw_sigma_rad=np.inf if track.odometry_step is None else track.odometry_step.yaw_sigma_rad(),
+        odometry_yaw_travel_rad=0.0 if track.odometry_step is None else track.odometry_step.yaw_travel_rad,
         along_difference_m=along_difference_m,
         odometry_along_sigma_m=along_sigma_m,
         odometry_along_travel_m=along_travel_m,

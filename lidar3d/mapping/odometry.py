@@ -66,10 +66,17 @@ class OdometryStep:
             return 0.0
         return 1.0 / (1.0 / rows_information + (shortfall * self.yaw_travel_rad) ** 2)
 
+    def yaw_sigma_rad(self) -> float:
+        """Standard deviation (rad) of the step's yaw as its edge rows give it (no shortfall); inf
+        when it measured none (or the guess was kept)."""
+        information = 0.0 if self.used_motion_model else self.yaw_information(0.0)
+        return float(1.0 / np.sqrt(information)) if information > 0.0 else float(np.inf)
+
     def xy_covariance(self) -> np.ndarray | None:
         """(2,2) covariance (m^2) of the step's x, y (previous scan's frame) as its edge rows give
-        it, marginalised over the yaw; None when the edge step did not observe all of x, y, yaw."""
-        if self.edge_information is None or not self.edge_observed:
+        it, marginalised over the yaw; None when the edge step did not observe all of x, y, yaw
+        (or the guess was kept)."""
+        if self.edge_information is None or not self.edge_observed or self.used_motion_model:
             return None
         free = list(EDGE_AXES)
         covariance = np.linalg.inv(self.edge_information[np.ix_(free, free)])

@@ -33,7 +33,7 @@ needs: the odometry, the motion model, the latest pose and the sweep waiting to 
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -92,13 +92,8 @@ class TrackResult:
         heading_observed: the scan, not the prior, decided the yaw (it removed at least half
             of the prior's yaw variance).
         deskew_twist: (6,) the predicted twist the scan was deskewed and registered with.
-        odometry_yaw_sigma_rad: standard deviation of the scan-to-scan odometry step's yaw as its
-            edge rows give it (:meth:`~lidar3d.mapping.odometry.OdometryStep.yaw_information`
-            without a shortfall), radians; inf when the step measured no yaw.
-        odometry_yaw_travel_rad: the yaw the odometry step moved from its guess, radians.
-        odometry_xy_covariance_m2: (2,2) covariance of the odometry step's x, y
-            (:meth:`~lidar3d.mapping.odometry.OdometryStep.xy_covariance`); None when unobserved.
-        odometry_xy_travel_m: (2,) the x, y the odometry step moved from its guess, metres.
+        odometry_step: the scan-to-scan odometry step (its uncertainty and how far it moved
+            from its guess, for the health signal); None only in results built by hand.
         settled: the previous sweep, final now (None for the first scan).
         timings_ms: wall milliseconds per stage: deskew, odometry, mapping, redeskew (the last
             only when a previous sweep was settled).
@@ -114,10 +109,7 @@ class TrackResult:
     deskew_twist: np.ndarray
     settled: SettledSweep | None
     timings_ms: dict[str, float]
-    odometry_yaw_sigma_rad: float = np.inf
-    odometry_yaw_travel_rad: float = 0.0
-    odometry_xy_covariance_m2: np.ndarray | None = None
-    odometry_xy_travel_m: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    odometry_step: OdometryStep | None = None
 
     @property
     def well_constrained(self) -> bool:
@@ -245,10 +237,7 @@ class Tracker:
             deskew_twist=predicted,
             settled=settled,
             timings_ms=clock.ms,
-            odometry_yaw_sigma_rad=_yaw_sigma(step),
-            odometry_yaw_travel_rad=step.yaw_travel_rad,
-            odometry_xy_covariance_m2=None if step.used_motion_model else step.xy_covariance(),
-            odometry_xy_travel_m=step.xy_travel_m,
+            odometry_step=step,
         )
 
     def finish(self) -> SettledSweep | None:
@@ -351,12 +340,6 @@ class Tracker:
         if refined.iterations == 0 or refined.degenerate_axes:
             return kept
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
-
-
-def _yaw_sigma(step: OdometryStep) -> float:
-    """Standard deviation (rad) of the odometry ``step``'s yaw from its edge rows; inf when it measured none."""
-    yaw_information = 0.0 if step.used_motion_model else step.yaw_information(0.0)
-    return float(1.0 / np.sqrt(yaw_information)) if yaw_information > 0.0 else float(np.inf)
 
 
 def _odometry_heading(T_world_guess: np.ndarray, step: OdometryStep, shortfall: float) -> PosePrior | None:
