@@ -47,7 +47,7 @@ guess that the biased trajectory itself predicted. Over the last
 floor (``heading_sigma_floor_deg``, ``along_sigma_floor_m``) standing for the refined poses' own
 noise at the window's ends (the sums telescope). Either ``z > max_consistency_z`` flags the scan
 degraded: one of the two estimates drifted, and nothing else tells which. A scan whose odometry
-did not observe a quantity adds nothing to its sum.
+did not observe a quantity adds nothing to its sum, nor does a standstill.
 """
 
 from __future__ import annotations
@@ -189,7 +189,7 @@ class PosedScan(Protocol):
     def T_world_odom(self) -> np.ndarray: ...
 
 
-_MIN_ALONG_STEP_M = 0.01  # below this the step has no direction to compare along
+_MIN_ALONG_STEP_M = 0.01  # below this the step has no direction to compare along (a standstill)
 
 
 def _yaw_rad(T: np.ndarray) -> float:
@@ -314,8 +314,11 @@ class _ConsistencyWindow:
 
     def _entry(self, m: ScanMeasures) -> tuple[float, float, float, float, float]:
         """``(step_m, yaw difference, its variance, along difference, its variance)``; a quantity
-        the odometry did not observe enters as 0, 0."""
+        the odometry did not observe enters as 0, 0, and so does a standstill (both estimates
+        see the same still scene: no evidence, and a long stop must not add up noise)."""
         yaw, yaw_var, along, along_var = 0.0, 0.0, 0.0, 0.0
+        if m.step_m < _MIN_ALONG_STEP_M:
+            return m.step_m, yaw, yaw_var, along, along_var
         if np.isfinite(m.odometry_yaw_sigma_rad):
             yaw = _beyond_shortfall(m.heading_difference_rad, self._travel_share * m.odometry_yaw_travel_rad)
             yaw_var = m.odometry_yaw_sigma_rad**2
