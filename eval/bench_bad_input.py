@@ -12,8 +12,9 @@ driver stamps) and prints the ATE RMSE and maximum of ``lidar3d run --no-loop`` 
 against the ground truth at its own stamps (interpolated).
 
 ``stop``: simulates the ``stops`` scenario with its first stop held for ``--hold`` seconds, runs
-``lidar3d.run.run_bag`` on it and prints the drift while standing, the keyframes added, the wall
-seconds per stationary and per moving scan and the peak memory.
+``lidar3d.run.run_bag`` on it and prints the drift while standing, the keyframes added, the scans
+the health flags (while standing and in all), the wall seconds per stationary and per moving scan
+and the peak memory.
 
 Everything is written into a temporary folder (deleted afterwards, never committed). Usage::
 
@@ -42,9 +43,11 @@ if str(REPO) not in sys.path:
 
 from lidar3d.cli.main import main as cli_main  # noqa: E402
 from lidar3d.io.bag_writer import write_cloud_bag, write_scan_bag  # noqa: E402
+from lidar3d.io.health_csv import read_health_csv  # noqa: E402
 from lidar3d.io.pointcloud2 import PointCloud2Parts, encode_fields  # noqa: E402
 from lidar3d.io.scan_source import ScanSource  # noqa: E402
 from lidar3d.io.trajectory_io import read_tum  # noqa: E402
+from lidar3d.mapping.health import HealthFlag  # noqa: E402
 from lidar3d.metrics.evaluation import evaluate_trajectory  # noqa: E402
 from lidar3d.records import Scan  # noqa: E402
 
@@ -161,6 +164,8 @@ def stop(args: argparse.Namespace, work: Path) -> None:
     rotation = estimate.T_world_lidar[standing, :3, :3]
     yaw = np.degrees(np.unwrap(np.arctan2(rotation[:, 1, 0], rotation[:, 0, 0])))
     keyframes = read_tum(work / "run" / "keyframes_tum.txt").stamps_ns
+    _, health = read_health_csv(work / "run" / "health.csv")
+    flagged = np.array([h.flag is not HealthFlag.OK for h in health])
     per_scan = np.diff(np.array(ticks))  # per_scan[i]: wall time of scan i + 1
     still = standing[1:]
     held_s = (end_ns - start_ns) * 1e-9
@@ -174,6 +179,8 @@ def stop(args: argparse.Namespace, work: Path) -> None:
         "drift_m_per_s": float(f"{moved[-1] / held_s:.2g}"),
         "yaw_change_deg": round(float(yaw[-1] - yaw[0]), 4),
         "keyframes_while_standing": int(np.count_nonzero((keyframes >= start_ns) & (keyframes <= end_ns))),
+        "health_flagged_while_standing": int(np.count_nonzero(flagged & standing)),
+        "health_flagged": int(np.count_nonzero(flagged)),
         "s_per_stationary_scan_median": round(float(np.median(per_scan[still])), 3),
         "s_per_moving_scan_median": round(float(np.median(per_scan[~still])), 3),
         "peak_rss_main_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024,
