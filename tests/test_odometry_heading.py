@@ -79,6 +79,7 @@ def test_xy_covariance_is_the_marginal_of_the_edge_rows() -> None:
     # A degenerate edge step (edge_observed False) or none at all observes no translation.
     assert OdometryStep(np.eye(4), False, 100, 50, False, information, 0.0).xy_covariance() is None
     assert OdometryStep(np.eye(4), False, 100, 0).xy_covariance() is None
+    assert OdometryStep(np.eye(4), False, 100, 50, True, np.zeros((6, 6)), 0.0).xy_covariance() is None
 
 
 def test_a_step_that_travelled_far_knows_its_yaw_less() -> None:

@@ -79,7 +79,10 @@ class OdometryStep:
         if self.edge_information is None or not self.edge_observed or self.used_motion_model:
             return None
         free = list(EDGE_AXES)
-        covariance = np.linalg.inv(self.edge_information[np.ix_(free, free)])
+        try:
+            covariance = np.linalg.inv(self.edge_information[np.ix_(free, free)])
+        except np.linalg.LinAlgError:  # singular to machine precision despite the eigenvalue test
+            return None
         return covariance[:2, :2]
 
 
