@@ -379,6 +379,17 @@ def test_health_csv_round_trip(tmp_path):
     assert [h.measures for h in back] == [h.measures for h in health]  # these values print exactly in 6 digits
 
 
+def test_an_earlier_releases_health_csv_is_read_without_the_consistency_measures(tmp_path):
+    path = tmp_path / "health.csv"
+    earlier = HEALTH_COLUMNS[: HEALTH_COLUMNS.index("heading_difference_deg")]
+    path.write_text(",".join(earlier) + "\n3,100,degraded,0,2.500,0.000,1,0,800,1,0.004,0.5,0.01,0.02,0.9\n")
+    scans, (health,) = read_health_csv(path)
+    assert list(scans) == [3] and health.flag is HealthFlag.DEGRADED and health.dead_reckoned_m == 2.5
+    m = health.measures
+    assert m.n_rows == 800 and m.probe_share == 0.9 and m.odometry_yaw_sigma_rad == m.odometry_along_sigma_m == np.inf
+    assert m.heading_difference_rad == m.along_difference_m == health.heading_z == health.along_z == 0.0
+
+
 @pytest.mark.parametrize(
     "text, message",
     [

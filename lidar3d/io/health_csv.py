@@ -55,6 +55,20 @@ HEALTH_COLUMNS = (
     "along_z",
 )
 
+#: The columns of earlier releases' tables, the consistency test's missing: still read (its
+#: measures at their "not measured" defaults), so older run folders can be scored.
+_EARLIER_COLUMNS = HEALTH_COLUMNS[: HEALTH_COLUMNS.index("heading_difference_deg")]
+_NOT_MEASURED = {
+    "heading_difference_deg": "0",
+    "odometry_yaw_sigma_deg": "inf",
+    "odometry_yaw_travel_deg": "0",
+    "along_difference_m": "0",
+    "odometry_along_sigma_m": "inf",
+    "odometry_along_travel_m": "0",
+    "heading_z": "0",
+    "along_z": "0",
+}
+
 
 class HealthFileError(Lidar3dError):
     """A ``health.csv`` is missing or malformed."""
@@ -148,9 +162,12 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
 def read_health_csv(path: str | Path) -> tuple[np.ndarray, tuple[ScanHealth, ...]]:
     """The (N,) input scan numbers and the health of every row of a ``health.csv``.
 
+    A table of an earlier release (:data:`HEALTH_COLUMNS` without the consistency test's columns)
+    is read too, those measures at their "not measured" values.
+
     Raises:
-        HealthFileError: the file is missing, its header is not :data:`HEALTH_COLUMNS`, or a row
-            is malformed (one line naming the file and the line).
+        HealthFileError: the file is missing, its header is neither :data:`HEALTH_COLUMNS` nor the
+            earlier one, or a row is malformed (one line naming the file and the line).
     """
     path = Path(path)
     try:
@@ -159,15 +176,16 @@ def read_health_csv(path: str | Path) -> tuple[np.ndarray, tuple[ScanHealth, ...
         raise HealthFileError(f"{path}: cannot read the health table ({err.strerror or err})") from err
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
-    if header is None or tuple(header) != HEALTH_COLUMNS:
+    columns = tuple(header) if header is not None else ()
+    if columns not in (HEALTH_COLUMNS, _EARLIER_COLUMNS):
         raise HealthFileError(f"{path}: not a health table (the first line must be {','.join(HEALTH_COLUMNS)})")
     scans: list[int] = []
     health: list[ScanHealth] = []
     for lineno, values in enumerate(reader, start=2):
-        if len(values) != len(HEALTH_COLUMNS):
-            raise HealthFileError(f"{path}:{lineno}: {len(values)} columns, expected {len(HEALTH_COLUMNS)}")
+        if len(values) != len(columns):
+            raise HealthFileError(f"{path}:{lineno}: {len(values)} columns, expected {len(columns)}")
         try:
-            scan, row = _row(dict(zip(HEALTH_COLUMNS, values)))
+            scan, row = _row(_NOT_MEASURED | dict(zip(columns, values)))
         except ValueError as err:
             raise HealthFileError(f"{path}:{lineno}: {err}") from None
         scans.append(scan)
