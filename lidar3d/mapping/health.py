@@ -62,7 +62,7 @@ import numpy as np
 
 from lidar3d.config import HealthConfig
 from lidar3d.mapping.registration import observed_share
-from lidar3d.mapping.se3 import exp_se3, invert
+from lidar3d.mapping.se3 import exp_se3, invert, xyz_rpy_from_pose
 from lidar3d.mapping.tracker import TrackResult
 from lidar3d.summary import HealthStretch, HealthSummary
 
@@ -192,14 +192,8 @@ class PosedScan(Protocol):
 _MIN_ALONG_STEP_M = 0.01  # below this the step has no direction to compare along (a standstill)
 
 
-def _yaw_rad(T: np.ndarray) -> float:
-    """The yaw (rad) of a (4,4) pose, ``atan2(R[1,0], R[0,0])``."""
-    return float(np.arctan2(T[1, 0], T[0, 0]))
-
-
-def _pose_difference_m(T_a: np.ndarray, T_b: np.ndarray, lever_m: float) -> float:
-    """``|dt| + lever_m * angle(dR)`` of the (4,4) poses ``T_a`` and ``T_b`` (same frame), metres."""
-    delta = invert(T_a) @ T_b
+def _difference_m(delta: np.ndarray, lever_m: float) -> float:
+    """``|dt| + lever_m * angle(dR)`` of the (4,4) relative pose ``delta``, metres."""
     cos_angle = np.clip((np.trace(delta[:3, :3]) - 1.0) / 2.0, -1.0, 1.0)
     return float(np.linalg.norm(delta[:3, 3]) + lever_m * np.arccos(cos_angle))
 
@@ -246,8 +240,9 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         step = invert(previous.T_world_lidar) @ track.T_world_lidar
         odometry_step = invert(previous.T_world_odom) @ track.T_world_odom
         step_m = float(np.linalg.norm(step[:3, 3]))
-        odometry_disagreement_m = _pose_difference_m(step, odometry_step, config.lever_m)
-        heading_difference_rad = _yaw_rad(invert(odometry_step) @ step)
+        refined_from_odometry = invert(odometry_step) @ step
+        odometry_disagreement_m = _difference_m(refined_from_odometry, config.lever_m)
+        heading_difference_rad = float(xyz_rpy_from_pose(refined_from_odometry)[5])
         odometry = track.odometry_step
         if step_m >= _MIN_ALONG_STEP_M and odometry is not None:
             direction = step[:3, 3] / step_m
@@ -256,7 +251,7 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
             covariance = odometry.xy_covariance()
             if covariance is not None:
                 along_sigma_m = float(np.sqrt(max(direction[:2] @ covariance @ direction[:2], 0.0)))
-        prediction_offset_m = _pose_difference_m(step, exp_se3(track.deskew_twist * dt_s), config.lever_m)
+        prediction_offset_m = _difference_m(invert(step) @ exp_se3(track.deskew_twist * dt_s), config.lever_m)
     return ScanMeasures(
         registered=registered,
         motion_model_only=track.motion_model_only,

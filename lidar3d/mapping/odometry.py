@@ -39,7 +39,8 @@ class OdometryStep:
         edge_observed: the edge step ran and none of x, y, yaw was degenerate (so the step is
             a measurement of the horizontal motion, not the motion-model guess carried along).
         edge_information: (6,6) the edge step's rows' information (``J^T W J / sigma^2`` over
-            ``[tx, ty, tz, roll, pitch, yaw]``, free axes x, y, yaw); None when it did not run.
+            ``[tx, ty, tz, roll, pitch, yaw]``, free axes x, y, yaw); None when it did not run
+            (always so when ``used_motion_model``).
         yaw_travel_rad: the yaw the edge step moved from its guess (wrapped to [-pi, pi)).
         xy_travel_m: (2,) the x, y the step moved from its guess (previous scan's frame), metres.
     """
@@ -68,15 +69,15 @@ class OdometryStep:
 
     def yaw_sigma_rad(self) -> float:
         """Standard deviation (rad) of the step's yaw as its edge rows give it (no shortfall); inf
-        when it measured none (or the guess was kept)."""
-        information = 0.0 if self.used_motion_model else self.yaw_information(0.0)
+        when it measured none (a kept guess has no edge information)."""
+        information = self.yaw_information(0.0)
         return float(1.0 / np.sqrt(information)) if information > 0.0 else float(np.inf)
 
     def xy_covariance(self) -> np.ndarray | None:
         """(2,2) covariance (m^2) of the step's x, y (previous scan's frame) as its edge rows give
         it, marginalised over the yaw; None when the edge step did not observe all of x, y, yaw
-        (or the guess was kept)."""
-        if self.edge_information is None or not self.edge_observed or self.used_motion_model:
+        (a kept guess has no edge information)."""
+        if self.edge_information is None or not self.edge_observed:
             return None
         free = list(EDGE_AXES)
         try:

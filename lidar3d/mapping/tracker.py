@@ -351,8 +351,8 @@ def _odometry_heading(T_world_guess: np.ndarray, step: OdometryStep, shortfall: 
     poses: a heading error the submap shares is invisible to them, and on ``blind_turn`` (seed 1)
     such an error grew at 0.5 deg/s from the first scans (the map bent with it) while the
     scan-to-scan yaw, measured against the previous sweep alone, stayed within 0.03 deg/s."""
-    yaw_information = step.yaw_information(shortfall)
-    if step.used_motion_model or yaw_information <= 0.0:
+    yaw_information = step.yaw_information(shortfall)  # 0 for a kept guess: it has no edge rows
+    if yaw_information <= 0.0:
         return None
     information = np.zeros((6, 6))
     information[5, 5] = yaw_information
