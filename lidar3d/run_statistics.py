@@ -3,7 +3,8 @@
 The counters (``scans``, ``dropped_duplicate_stamps``, ``motion_model_scans``,
 ``degenerate_scans``, ``redeskewed_scans``, ``loop_closures``...) end up in ``summary.json``.
 Stretches of scans whose pose came from the motion model alone are reported as one warning each;
-the stretches the health signal flagged lost (:mod:`lidar3d.mapping.health`) as one warning line.
+the stretches the health signal flagged lost (:mod:`lidar3d.mapping.health`) as one warning line,
+and those it flagged degraded as another.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from collections import defaultdict
 
 import numpy as np
 
-from lidar3d.summary import HealthSummary
+from lidar3d.summary import HealthStretch, HealthSummary
 
 __all__ = ["RunStatistics"]
 
@@ -66,12 +67,15 @@ class RunStatistics:
 
     def warnings(self, n_scans_seen: int, health: HealthSummary | None = None) -> tuple[str, ...]:
         """The warnings so far; an open motion-model stretch is reported up to the last scan, and the
-        lost stretches of ``health`` (the run's health so far) in one line at the end."""
+        lost stretches of ``health`` (the run's health so far) in one line at the end, its degraded
+        stretches in another."""
         warnings = list(self._warnings)
         if self._fallback_start is not None:
             warnings.append(_fallback_message(self._fallback_start, n_scans_seen))
         if health is not None and health.lost_stretches:
             warnings.append(_lost_message(health))
+        if health is not None and health.degraded_stretches:
+            warnings.append(_degraded_message(health))
         return tuple(warnings)
 
     def _close_fallback(self, end_index: int) -> None:
@@ -93,13 +97,32 @@ _STRETCHES_NAMED = 5
 def _lost_message(health: HealthSummary) -> str:
     """One line naming the lost stretches of a run, e.g. ``health: lost on 1 stretch (151.2 m, 38 %
     of the scans): scans 330-598 (151.2 m); poses there may be metres wrong, see health.csv``."""
-    stretches = health.lost_stretches
+    return _stretches_message(
+        "lost", health.lost_stretches, health.lost_m, health.lost_scans, health.scans, "metres wrong"
+    )
+
+
+def _degraded_message(health: HealthSummary) -> str:
+    """One line naming the degraded stretches of a run, as :func:`_lost_message` does the lost ones."""
+    return _stretches_message(
+        "degraded",
+        health.degraded_stretches,
+        health.degraded_m,
+        health.degraded_scans,
+        health.scans,
+        "decimetres to metres wrong",
+    )
+
+
+def _stretches_message(
+    flag: str, stretches: tuple[HealthStretch, ...], length_m: float, n_flagged: int, n_scans: int, error: str
+) -> str:
     named = [f"{s.first_scan}-{s.last_scan} ({s.length_m:.1f} m)" for s in stretches[:_STRETCHES_NAMED]]
     if len(stretches) > _STRETCHES_NAMED:
         named.append(f"and {len(stretches) - _STRETCHES_NAMED} more")
-    share = 100.0 * health.lost_scans / health.scans if health.scans else 0.0
+    share = 100.0 * n_flagged / n_scans if n_scans else 0.0
     plural = "es" if len(stretches) != 1 else ""
     return (
-        f"health: lost on {len(stretches)} stretch{plural} ({health.lost_m:.1f} m, {share:.0f} % of the scans): "
-        f"scans {', '.join(named)}; poses there may be metres wrong, see health.csv"
+        f"health: {flag} on {len(stretches)} stretch{plural} ({length_m:.1f} m, {share:.0f} % of the scans): "
+        f"scans {', '.join(named)}; poses there may be {error}, see health.csv"
     )

@@ -13,7 +13,7 @@ Layout of ``summary.json`` (keys in this order; optional keys are left out when 
     loop_ms_total, counts {scans[, redeskewed_scans, motion_model_scans, degenerate_scans,
     loop_closures, dropped_duplicate_stamps, dropped_out_of_order_stamps]}, warnings, pose_stamp
     [, health {ok_scans, degraded_scans, lost_scans, ok_fraction, lost_m, lost_stretches [{first_scan,
-    last_scan, start_stamp_ns, end_stamp_ns, length_m}, ...]}]
+    last_scan, start_stamp_ns, end_stamp_ns, length_m}, ...], degraded_m, degraded_stretches [...]}]
     [, input_stats {points_kept, nonfinite_dropped, below_min_range_dropped, absurd_coordinates_dropped,
     outlier_times_dropped, messages_lost, scans_timed_from_azimuth}]
     [, map_rebuild_s] [, evaluation {report, table, ate {translation_3d_m, horizontal_m,
@@ -127,6 +127,10 @@ class _JsonObject:
         """A required list of objects, each parsed by ``parse`` (errors name ``key[i]``)."""
         items = self._get(name, lambda v: isinstance(v, list), "a list", True)
         return tuple(parse(_JsonObject(item, f"{self.dotted(name)}[{i}]", self.source)) for i, item in enumerate(items))
+
+    def optional_records(self, name: str, parse: Callable[[_JsonObject], _T]) -> tuple[_T, ...]:
+        """:meth:`records`, or no record when the key is absent."""
+        return self.records(name, parse) if name in self.data else ()
 
     def finish(self) -> None:
         """Reject keys that no field took (a misspelt or foreign key)."""
@@ -292,7 +296,7 @@ class InputStatistics:
 
 @dataclass(frozen=True, slots=True)
 class HealthStretch:
-    """A stretch of consecutive scans flagged lost by the health signal.
+    """A stretch of consecutive scans given one flag (lost, or degraded) by the health signal.
 
     Attributes:
         first_scan, last_scan: input scan numbers of its first and last scan (as in the warnings).
@@ -332,6 +336,8 @@ class HealthSummary:
         ok_fraction: ``ok_scans`` / scans (rounded to 0.0001; 1.0 for a run without scans).
         lost_m: path length over the lost stretches, metres (rounded to 1 mm).
         lost_stretches: every stretch of consecutive lost scans, in order.
+        degraded_m, degraded_stretches: the same for the degraded scans (a summary written before
+            this field existed reads as 0.0 and no stretch).
     """
 
     ok_scans: int
@@ -340,6 +346,8 @@ class HealthSummary:
     ok_fraction: float
     lost_m: float
     lost_stretches: tuple[HealthStretch, ...] = ()
+    degraded_m: float = 0.0
+    degraded_stretches: tuple[HealthStretch, ...] = ()
 
     @property
     def scans(self) -> int:
@@ -348,6 +356,7 @@ class HealthSummary:
     def as_dict(self) -> dict[str, Any]:
         data: dict[str, Any] = {field.name: getattr(self, field.name) for field in dataclasses.fields(self)}
         data["lost_stretches"] = [stretch.as_dict() for stretch in self.lost_stretches]
+        data["degraded_stretches"] = [stretch.as_dict() for stretch in self.degraded_stretches]
         return data
 
     @classmethod
@@ -359,6 +368,8 @@ class HealthSummary:
             ok_fraction=obj.number("ok_fraction"),
             lost_m=obj.number("lost_m"),
             lost_stretches=obj.records("lost_stretches", HealthStretch._parse),
+            degraded_m=obj.optional_number("degraded_m") or 0.0,
+            degraded_stretches=obj.optional_records("degraded_stretches", HealthStretch._parse),
         )
         obj.finish()
         return parsed

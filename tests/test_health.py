@@ -317,6 +317,8 @@ def test_stretches_and_summary_measure_the_lost_scans_on_the_trajectory():
     first, second = summary.lost_stretches
     assert (first.first_scan, first.last_scan, first.start_stamp_ns, first.end_stamp_ns) == (102, 104, 2 * S, 4 * S)
     assert first.length_m == 3.0 and second.length_m == 2.0 and summary.lost_m == 5.0
+    (degraded,) = summary.degraded_stretches
+    assert (degraded.first_scan, degraded.last_scan, degraded.length_m, summary.degraded_m) == (105, 105, 1.0, 1.0)
     assert summarize_health([], [], np.zeros((0, 3))) == HealthSummary(0, 0, 0, 1.0, 0.0, ())
 
 
@@ -338,6 +340,19 @@ def test_a_run_with_lost_stretches_ends_with_one_warning_line():
     assert "40-44 (12.5 m), and 2 more; poses there" in line and "\n" not in line
 
 
+def test_degraded_stretches_get_a_warning_line_of_their_own():
+    stretch = HealthStretch(20, 29, 20 * S, 29 * S, 8.5)
+    lost_and_degraded = dataclasses.replace(
+        _lost_summary(1), degraded_scans=10, degraded_m=8.5, degraded_stretches=(stretch,)
+    )
+    lost_line, degraded_line = RunStatistics().warnings(10, lost_and_degraded)
+    assert lost_line.startswith("health: lost on 1 stretch")
+    assert degraded_line == (
+        "health: degraded on 1 stretch (8.5 m, 15 % of the scans): scans 20-29 (8.5 m); "
+        "poses there may be decimetres to metres wrong, see health.csv"
+    )
+
+
 def test_summary_json_round_trip_keeps_the_health():
     summary = example_summary(health=_lost_summary(2))
     text = summary.to_json()
@@ -350,6 +365,8 @@ def test_summary_json_round_trip_keeps_the_health():
         "ok_fraction",
         "lost_m",
         "lost_stretches",
+        "degraded_m",
+        "degraded_stretches",
     ]
     assert data["health"]["lost_stretches"][1] == {
         "first_scan": 10,
@@ -358,6 +375,10 @@ def test_summary_json_round_trip_keeps_the_health():
         "end_stamp_ns": S + 4,
         "length_m": 12.5,
     }
+    # A summary written before the degraded stretches were counted reads as having none.
+    older = json.loads(text)
+    del older["health"]["degraded_m"], older["health"]["degraded_stretches"]
+    assert RunSummary.from_json(json.dumps(older)) == summary
     data["health"]["lost_stretches"][0]["length_m"] = "far"
     with pytest.raises(SummaryError, match=r"^s\.json: 'health\.lost_stretches\[0\]\.length_m' must be a number"):
         RunSummary.from_json(json.dumps(data), source="s.json")
@@ -465,7 +486,7 @@ def test_a_run_with_lost_stretches_exits_0_and_says_so(simulated, tmp_path, caps
     summary = _check_folder_health(out)
     (stretch,) = summary.health.lost_stretches
     assert stretch.last_scan == summary.scans - 1 and stretch.length_m > 5.0
-    warnings = [w for w in summary.warnings if w.startswith("health:")]
+    warnings = [w for w in summary.warnings if w.startswith("health: lost")]
     assert len(warnings) == 1 and f"scans {stretch.first_scan}-{stretch.last_scan}" in warnings[0]
     printed = capsys.readouterr().out
     assert printed.count("warning: health: lost on 1 stretch") == 1
@@ -474,6 +495,21 @@ def test_a_run_with_lost_stretches_exits_0_and_says_so(simulated, tmp_path, caps
     assert row["health"] == "lost" and row["lost_m"] == summary.health.lost_m
     page = write_report(tmp_path, [row], {"out_dir": str(tmp_path)}).html.read_text()
     assert f"lost {summary.health.lost_m:.1f} m: ok" in page and 'class="health-lost"' in page
+
+
+def test_a_run_with_degraded_stretches_says_so_in_its_own_line(simulated, tmp_path, capsys):
+    # Nothing counts as observed: a centimetre of travel makes a scan degraded, and none is lost.
+    config = tmp_path / "degraded.toml"
+    config.write_text("[health]\nobserved_sigma_m = 1e-9\ndegraded_after_m = 0.01\nlost_after_m = 1e6\n")
+    out = tmp_path / "out"
+    assert main(["-q", "run", str(simulated.bag), "--out", str(out), "--no-loop", "--config", str(config)]) == 0
+    summary = _check_folder_health(out)
+    (stretch,) = summary.health.degraded_stretches
+    assert summary.health.lost_stretches == () and stretch.last_scan == summary.scans - 1
+    assert summary.health.degraded_m == stretch.length_m > 5.0
+    printed = capsys.readouterr().out
+    assert printed.count(f"warning: health: degraded on 1 stretch ({stretch.length_m:.1f} m") == 1
+    assert "warning: health: lost" not in printed
 
 
 def test_the_batch_report_has_a_health_column(tmp_path):

@@ -387,7 +387,7 @@ def flag_stretches(flags: Sequence[HealthFlag], flag: HealthFlag) -> list[tuple[
 def summarize_health(
     health: Sequence[ScanHealth], scan_indices: Sequence[int] | np.ndarray, positions_m: np.ndarray
 ) -> HealthSummary:
-    """The flags of a run counted, with its lost stretches measured along the trajectory.
+    """The flags of a run counted, with its lost and degraded stretches measured along the trajectory.
 
     Args:
         health: the health of every scan of the trajectory, in order.
@@ -399,21 +399,28 @@ def summarize_health(
     counts = {flag: sum(f is flag for f in flags) for flag in HealthFlag}
     positions = np.asarray(positions_m, dtype=np.float64).reshape(-1, 3)
     travelled = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(positions, axis=0), axis=1))])
-    stretches = tuple(
-        HealthStretch(
-            first_scan=int(scan_indices[first]),
-            last_scan=int(scan_indices[last]),
-            start_stamp_ns=int(health[first].stamp_ns),
-            end_stamp_ns=int(health[last].stamp_ns),
-            length_m=round(float(travelled[last] - travelled[max(first - 1, 0)]), 3),
+
+    def stretches_of(flag: HealthFlag) -> tuple[HealthStretch, ...]:
+        return tuple(
+            HealthStretch(
+                first_scan=int(scan_indices[first]),
+                last_scan=int(scan_indices[last]),
+                start_stamp_ns=int(health[first].stamp_ns),
+                end_stamp_ns=int(health[last].stamp_ns),
+                length_m=round(float(travelled[last] - travelled[max(first - 1, 0)]), 3),
+            )
+            for first, last in flag_stretches(flags, flag)
         )
-        for first, last in flag_stretches(flags, HealthFlag.LOST)
-    )
+
+    lost = stretches_of(HealthFlag.LOST)
+    degraded = stretches_of(HealthFlag.DEGRADED)
     return HealthSummary(
         ok_scans=counts[HealthFlag.OK],
         degraded_scans=counts[HealthFlag.DEGRADED],
         lost_scans=counts[HealthFlag.LOST],
         ok_fraction=round(counts[HealthFlag.OK] / n, 4) if n else 1.0,
-        lost_m=round(float(sum(s.length_m for s in stretches)), 3),
-        lost_stretches=stretches,
+        lost_m=round(float(sum(s.length_m for s in lost)), 3),
+        lost_stretches=lost,
+        degraded_m=round(float(sum(s.length_m for s in degraded)), 3),
+        degraded_stretches=degraded,
     )
