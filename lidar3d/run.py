@@ -510,6 +510,7 @@ def _evaluate(result: SlamResult, span: _SpanInputs, config: Config, out: Path, 
         T_imu_lidar=span.T_imu_lidar,
         config=config.gnss,
         trajectory_source=str(out / "trajectory_tum.txt"),
+        reference=span.reference,
     )
     evaluation = dataclasses.replace(evaluation, fusion=disclosure)
     report = span_report_dict(evaluation)

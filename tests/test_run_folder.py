@@ -21,9 +21,12 @@ from pathlib import Path
 import pytest
 from test_summary import example_summary
 
+import lidar3d.gnss.reference as reference_module
 import lidar3d.io.run_folder as run_folder
+import lidar3d.metrics.span_eval as span_eval
 from lidar3d.cli.main import main
 from lidar3d.errors import OutputError
+from lidar3d.gnss.reference import span_reference
 from lidar3d.io.run_folder import (
     STAGING_NAME,
     RunFolderState,
@@ -172,7 +175,17 @@ def simulated(tmp_path_factory):
     return sim.simulate("loop", tmp_path_factory.mktemp("sim") / "loop", seed=0, duration_s=3.0)
 
 
-def test_a_run_folder_is_consistent_with_every_output_named(simulated, tmp_path):
+def test_a_run_folder_is_consistent_with_every_output_named(simulated, tmp_path, monkeypatch):
+    # The SPAN log's reference is built (and its summary logged) once, for the georeference and the
+    # evaluation both.
+    built = []
+
+    def counted_span_reference(*args, **kwargs):
+        built.append(args[0])
+        return span_reference(*args, **kwargs)
+
+    monkeypatch.setattr(reference_module, "span_reference", counted_span_reference)
+    monkeypatch.setattr(span_eval, "span_reference", counted_span_reference)
     out = tmp_path / "out"
     assert (
         main(
@@ -186,6 +199,7 @@ def test_a_run_folder_is_consistent_with_every_output_named(simulated, tmp_path)
     assert {"config.toml", "map.pcd", "trajectory_kitti.times.txt", "eval/report.json"} <= names
     assert check.summary.output("map.pcd").rows == check.summary.map_points > 0
     assert verify_folder(out)[1] == ""
+    assert len(built) == 1
 
 
 def test_a_rerun_into_an_old_folder_is_refused_without_overwrite(simulated, tmp_path, capsys):

@@ -118,6 +118,7 @@ def evaluate_against_span(
     align: AlignmentMode | str | None = None,
     origin: GeodeticOrigin | None = None,
     trajectory_source: str = "",
+    reference: InsReference | None = None,
 ) -> SpanEvaluation:
     """Evaluate ``estimate`` (lidar poses, bag clock) against the INS solutions of a SPAN log.
 
@@ -131,6 +132,9 @@ def evaluate_against_span(
         align: overrides ``config.align``.
         origin: ENU origin; else ``config.origin``, else the first kept solution.
         trajectory_source: the trajectory's file name, where known, for the report.
+        reference: the log's INS reference when the caller has built it already, from this log with
+            this ``config`` and origin (:func:`~lidar3d.gnss.reference.span_reference`); built here
+            (and its summary logged) when None.
 
     Raises :class:`~lidar3d.errors.GnssError` (unreadable log, no usable pose, INS never aligned),
     :class:`~lidar3d.metrics.errors.EvaluationError` (no time overlap, too few associated poses).
@@ -143,7 +147,8 @@ def evaluate_against_span(
             config, origin=(origin.latitude_deg, origin.longitude_deg, origin.height_ellipsoid_m)
         )
     log = _log_of(span_log)
-    reference = span_reference(log, config, origin_from_config(config.origin))
+    if reference is None:
+        reference = span_reference(log, config, origin_from_config(config.origin))
     T = np.eye(4) if T_imu_lidar is None else np.asarray(T_imu_lidar, dtype=np.float64)
     evaluation = evaluate_trajectory(
         estimate,
