@@ -477,13 +477,18 @@ def test_a_run_writes_health_csv_consistent_with_its_summary(default_run):
     assert "health: 100 % of the scans ok, 0 degraded, 0 lost" in printed and "warning: health" not in printed
 
 
-def test_a_run_with_lost_stretches_exits_0_and_says_so(simulated, tmp_path, capsys):
-    # Nothing counts as observed and a few centimetres of travel make a scan lost.
-    config = tmp_path / "strict.toml"
-    config.write_text("[health]\nobserved_sigma_m = 1e-9\ndegraded_after_m = 0.01\nlost_after_m = 0.02\n")
+def _run_observing_nothing(bag: Path, tmp_path: Path, lost_after_m: float) -> RunSummary:
+    """``lidar3d run`` (exit 0) where nothing counts as observed and a centimetre of travel makes a
+    scan degraded, ``lost_after_m`` lost; the checked summary of its folder."""
+    config = tmp_path / "observing_nothing.toml"
+    config.write_text(f"[health]\nobserved_sigma_m = 1e-9\ndegraded_after_m = 0.01\nlost_after_m = {lost_after_m}\n")
     out = tmp_path / "out"
-    assert main(["-q", "run", str(simulated.bag), "--out", str(out), "--no-loop", "--config", str(config)]) == 0
-    summary = _check_folder_health(out)
+    assert main(["-q", "run", str(bag), "--out", str(out), "--no-loop", "--config", str(config)]) == 0
+    return _check_folder_health(out)
+
+
+def test_a_run_with_lost_stretches_exits_0_and_says_so(simulated, tmp_path, capsys):
+    summary = _run_observing_nothing(simulated.bag, tmp_path, lost_after_m=0.02)
     (stretch,) = summary.health.lost_stretches
     assert stretch.last_scan == summary.scans - 1 and stretch.length_m > 5.0
     warnings = [w for w in summary.warnings if w.startswith("health: lost")]
@@ -498,12 +503,7 @@ def test_a_run_with_lost_stretches_exits_0_and_says_so(simulated, tmp_path, caps
 
 
 def test_a_run_with_degraded_stretches_says_so_in_its_own_line(simulated, tmp_path, capsys):
-    # Nothing counts as observed: a centimetre of travel makes a scan degraded, and none is lost.
-    config = tmp_path / "degraded.toml"
-    config.write_text("[health]\nobserved_sigma_m = 1e-9\ndegraded_after_m = 0.01\nlost_after_m = 1e6\n")
-    out = tmp_path / "out"
-    assert main(["-q", "run", str(simulated.bag), "--out", str(out), "--no-loop", "--config", str(config)]) == 0
-    summary = _check_folder_health(out)
+    summary = _run_observing_nothing(simulated.bag, tmp_path, lost_after_m=1e6)  # none is lost
     (stretch,) = summary.health.degraded_stretches
     assert summary.health.lost_stretches == () and stretch.last_scan == summary.scans - 1
     assert summary.health.degraded_m == stretch.length_m > 5.0
