@@ -3,9 +3,9 @@
 The run folder gives the poses (``trajectory_tum.txt``), the configuration (``config.toml``) and the
 moving objects to leave out (the voxels of ``dynamic.pcd``); the scans are read again from the run's
 input bag(s) (``summary.json`` ``inputs``), each deskewed with the motion to the next pose as the map
-was, twice: first the segmentation marks each scan's ground cells and the local ground is fitted to
-them (:class:`~lidar3d.mapping.occupancy_grid.GroundModel`; ``map.pcd``'s lowest points only when no
-scan has ground cells), then every scan is ray cast into the grid
+was, once (the placed scans are kept in memory): first the segmentation marks each scan's ground
+cells and the local ground is fitted to them (:class:`~lidar3d.mapping.occupancy_grid.GroundModel`;
+``map.pcd``'s lowest points only when no scan has ground cells), then every scan is ray cast into the grid
 (:class:`~lidar3d.mapping.occupancy_grid.OccupancyGridBuilder`).
 Outputs in the output folder: ``map.yaml`` + ``map.pgm`` (map_server) and ``map.png`` (preview).
 """
@@ -124,7 +124,7 @@ def grid_run(
         dynamic_points, _ = read_pcd(run / "dynamic.pcd")
         dynamic_keys = np.unique(voxel_keys(dynamic_points, config.mapping.map_voxel_m))
     inputs = [_input_path(run, p) for p in summary.inputs]
-    ground, ground_masks = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
+    ground, placed_scans = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
     if ground is None:  # no scan marked ground cells (e.g. segmentation failed on every scan)
         log.warning("%s: no ground cells in the scans: the local ground is taken from map.pcd", run)
         ground = GroundModel.from_points(lowest_per_cell(map_points, GROUND_CELL_M), GROUND_CELL_M)
@@ -133,9 +133,9 @@ def grid_run(
     bounds = np.array([positions[:, :2].min(axis=0) - reach, positions[:, :2].max(axis=0) + reach])
     builder = OccupancyGridBuilder(params, ground, bounds)
     n_scans = n_left_out = 0
-    for placed, on_ground in zip(_placed_scans(inputs, config, trajectory, dynamic_keys), ground_masks, strict=True):
+    for placed in placed_scans:
         n_left_out += placed.n_moving
-        builder.add(placed.origin_world, placed.points_world, on_ground)
+        builder.add(placed.origin_world, placed.points_world, placed.ground)
         n_scans += 1
         if on_scan is not None:
             on_scan(n_scans, len(trajectory))
@@ -175,10 +175,10 @@ class _PlacedScan:
 
 
 def _placed_scans(
-    inputs: list[Path], config: Config, trajectory: Trajectory, dynamic_keys: np.ndarray, *, segment: bool = False
+    inputs: list[Path], config: Config, trajectory: Trajectory, dynamic_keys: np.ndarray
 ) -> Iterator[_PlacedScan]:
     """The run's scans that have a pose, deskewed with the motion over each sweep as the map was,
-    placed in the world; with ``segment`` their ground cells marked (else ``ground`` is all False)."""
+    placed in the world, their ground cells marked."""
     stamps, poses = trajectory.stamps_ns, trajectory.T_world_lidar
     model = config.sensor.resolved_model
     with open_scan_source(inputs, config) as source:
@@ -192,10 +192,8 @@ def _placed_scans(
             r = np.linalg.norm(final.points, axis=1)
             keep = (r >= config.sensor.min_range_m) & (r <= model.max_range_m)
             ground = np.zeros(len(scan), bool)
-            if segment:
-                image = project_scan(final, config.sensor, config.segmentation)
-                mask = mark_ground(image, config.segmentation, config.sensor)
-                ground[image.point_index[mask]] = True
+            image = project_scan(final, config.sensor, config.segmentation)
+            ground[image.point_index[mark_ground(image, config.segmentation, config.sensor)]] = True
             points = transform_points(poses[i], final.points[keep])
             ground = ground[keep]
             n_moving = 0
@@ -210,18 +208,18 @@ def _placed_scans(
 
 def _ground_of_scans(
     inputs: list[Path], config: Config, trajectory: Trajectory, dynamic_keys: np.ndarray
-) -> tuple[GroundModel | None, list[np.ndarray]]:
+) -> tuple[GroundModel | None, list[_PlacedScan]]:
     """The local ground fitted to the ground cells the segmentation marks in every scan (the lowest
-    per ``GROUND_CELL_M`` cell over all scans; None when no scan has any), and per scan (in
-    :func:`_placed_scans` order) the (N,) bool mask of its points marked ground."""
-    lowest, masks = [], []
-    for placed in _placed_scans(inputs, config, trajectory, dynamic_keys, segment=True):
+    per ``GROUND_CELL_M`` cell over all scans; None when no scan has any), and the placed scans with
+    their ground marked, in :func:`_placed_scans` order (kept, so the bag is read and deskewed once)."""
+    lowest, scans = [], []
+    for placed in _placed_scans(inputs, config, trajectory, dynamic_keys):
         lowest.append(lowest_per_cell(placed.points_world[placed.ground], GROUND_CELL_M))
-        masks.append(placed.ground)
+        scans.append(placed)
     every = np.concatenate(lowest) if lowest else np.zeros((0, 3))
     if not len(every):
-        return None, masks
-    return GroundModel.from_points(lowest_per_cell(every, GROUND_CELL_M), GROUND_CELL_M), masks
+        return None, scans
+    return GroundModel.from_points(lowest_per_cell(every, GROUND_CELL_M), GROUND_CELL_M), scans
 
 
 def _input_path(run: Path, recorded: str) -> Path:
