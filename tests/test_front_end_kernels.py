@@ -1,9 +1,10 @@
 """The compiled front-end kernels (numba) against the NumPy/SciPy/Python code they replaced, on
-simulated scans: the same cluster labels, outliers and features, bit for bit.
+simulated scans: the same range image, ground, cluster labels, outliers and features, bit for bit.
 
-The references below are the previous implementations, kept here as oracles: the clusters as
-connected components of a sparse graph (``scipy.sparse.csgraph``), the greedy feature pick as a
-Python loop over the sorted candidates.
+The references below are the previous implementations, kept here as oracles: the range image's
+cells filled by NumPy fancy indexing, the ground walk as row-by-row array work over all columns at
+once, the clusters as connected components of a sparse graph (``scipy.sparse.csgraph``), the greedy
+feature pick as a Python loop over the sorted candidates.
 """
 
 import numpy as np
@@ -15,8 +16,9 @@ from lidar3d.config import Config
 from lidar3d.features import run_front_end
 from lidar3d.features.selection import _sorted_by_section, suppression_spans
 from lidar3d.features.smoothness import compute_smoothness
-from lidar3d.segmentation import cluster_cells, mark_ground, project_scan
+from lidar3d.segmentation import cluster_cells, ground, mark_ground, project_scan
 from lidar3d.segmentation.clustering import joins_by_beta
+from lidar3d.sensors import SensorModel
 from lidar3d.sim import Simulation
 
 
@@ -64,6 +66,92 @@ def _reference_cluster_cells(image, ground_mask, config):
     label[cells] = new_id[dense]
     outlier[cells] = ~keep[dense]
     return label.reshape(n_rows, n_columns), outlier.reshape(n_rows, n_columns)
+
+
+def _reference_image_cells(scan, sensor: SensorModel, config):
+    """The cells of ``project_scan``'s image as they were filled: (point_index, points, range_m)."""
+    range_m = np.sqrt(np.einsum("ij,ij->i", scan.points, scan.points))  # as project_scan computes it
+    rows = np.asarray(scan.ring, dtype=np.int64)  # the simulator's rings are the image rows
+    valid = (range_m >= config.sensor.min_range_m) & (range_m <= sensor.max_range_m)
+    index = np.flatnonzero(valid)
+    resolution_rad = np.deg2rad(sensor.azimuth_resolution_deg)
+    columns = np.rint(np.arctan2(scan.points[index, 1], scan.points[index, 0]) / resolution_rad).astype(np.int64)
+    columns = (columns + sensor.n_columns // 2) % sensor.n_columns
+    flat_index = np.full(sensor.n_rings * sensor.n_columns, -1, dtype=np.int64)
+    flat_index[rows[index] * sensor.n_columns + columns] = index  # repeated cells: the last point stays
+    point_index = flat_index.reshape(sensor.n_rings, sensor.n_columns)
+    occupied = point_index >= 0
+    points = np.full((sensor.n_rings, sensor.n_columns, 3), np.nan)
+    points[occupied] = scan.points[point_index[occupied]]
+    image_range = np.full((sensor.n_rings, sensor.n_columns), np.nan)
+    image_range[occupied] = range_m[point_index[occupied]]
+    return point_index, points, image_range
+
+
+def _reference_walk(
+    ground_mask,
+    supported,
+    points,
+    run_m,
+    angle,
+    flat,
+    tan_angle,
+    at_level,
+    n_ground,
+    tan_threshold,
+    noise_m,
+    max_change,
+    min_baseline_m,
+    support_margin_m,
+):
+    """The ground's column walk as it was: row by row, every column at once (marks in place)."""
+
+    def gentle(new_angle, old_angle, run):
+        bend = np.abs(new_angle - old_angle) <= max_change
+        return bend | (np.abs(np.tan(new_angle) - np.tan(old_angle)) * run <= noise_m)
+
+    n_columns = ground_mask.shape[1]
+    last_ground = np.full((n_columns, 3), np.nan)
+    anchor = np.full((n_columns, 3), np.nan)
+    with np.errstate(invalid="ignore"):
+        for i in range(points.shape[0] - 1):
+            in_ground_rows = i < n_ground - 1
+            if not in_ground_rows and not ground_mask[i].any():
+                break
+            columns = np.flatnonzero(flat[i] if in_ground_rows else flat[i] & ground_mask[i])
+            if columns.size == 0:
+                continue
+            last, start = last_ground[columns], anchor[columns]
+            baseline = last - start
+            baseline_run = np.hypot(baseline[:, 0], baseline[:, 1])
+            slope = np.where(baseline_run >= min_baseline_m, np.arctan2(baseline[:, 2], baseline_run), np.nan)
+            slope_known = ~np.isnan(slope)
+            continues = ground_mask[i, columns]
+            pair_angle, pair_run = angle[i, columns], run_m[i, columns]
+            smooth = ~slope_known | gentle(pair_angle, slope, pair_run)
+            if in_ground_rows:
+                across = points[i, columns] - last
+                across_run = np.hypot(across[:, 0], across[:, 1])
+                bridge = np.arctan2(across[:, 2], across_run)
+                reachable = (
+                    (np.abs(across[:, 2]) <= tan_threshold * across_run + noise_m)
+                    & (~slope_known | gentle(bridge, slope, across_run))
+                    & gentle(pair_angle, bridge, pair_run)
+                )
+                has_ground_below = ~np.isnan(last[:, 0])
+                accept = np.where(continues, smooth, np.where(has_ground_below, reachable, at_level[i, columns]))
+            else:
+                accept = smooth
+            bend_m = np.abs(tan_angle[i, columns] - np.tan(slope)) * pair_run
+            upper_supported = np.where(continues & slope_known, bend_m <= support_margin_m, at_level[i + 1, columns])
+            supported[i + 1, columns] |= accept & upper_supported
+            supported[i, columns] |= accept & ~continues & at_level[i, columns]
+            accepted = columns[accept]
+            ground_mask[i, accepted] = True
+            ground_mask[i + 1, accepted] = True
+            move = accept & (~continues | np.isnan(start[:, 0]) | (pair_run >= min_baseline_m))
+            anchor[columns[move]] = points[i, columns[move]]
+            last_ground[accepted] = points[i + 1, accepted]
 
 
 def _reference_picks(segmentation, smoothness, config):
@@ -117,6 +205,37 @@ def scans():
         sweeps = list(Simulation(scenario, seed=0, duration_s=1.0).scans())
         picked += [sweeps[i].scan for i in (0, 4, 9)]
     return picked
+
+
+def test_range_image_cells_are_those_of_the_fancy_indexing(scans):
+    config = Config()
+    for scan in scans:
+        image = project_scan(scan, config.sensor, config.segmentation)
+        point_index, points, range_m = _reference_image_cells(scan, config.sensor.resolved_model, config)
+        assert np.count_nonzero(point_index >= 0) > 10_000
+        np.testing.assert_array_equal(image.point_index, point_index)
+        np.testing.assert_array_equal(image.points, points)
+        np.testing.assert_array_equal(image.range_m, range_m)
+
+
+def test_ground_walk_is_that_of_the_row_by_row_array_walk(scans, monkeypatch):
+    """Every call of the compiled walk during ``mark_ground`` marks what the array walk marks."""
+    compiled = ground._walk_columns
+    n_calls = []
+
+    def both(ground_mask, supported, *rest):
+        reference_ground, reference_supported = ground_mask.copy(), supported.copy()
+        compiled(ground_mask, supported, *rest)
+        _reference_walk(reference_ground, reference_supported, *rest)
+        np.testing.assert_array_equal(ground_mask, reference_ground)
+        np.testing.assert_array_equal(supported, reference_supported)
+        n_calls.append(int(ground_mask.sum()))
+
+    monkeypatch.setattr(ground, "_walk_columns", both)
+    config = Config()
+    for scan in scans:
+        mark_ground(project_scan(scan, config.sensor, config.segmentation), config.segmentation, config.sensor)
+    assert len(n_calls) == len(scans) and min(n_calls) > 5_000  # each scan walked, much ground found
 
 
 def test_clusters_are_those_of_the_sparse_graph_components(scans):

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.config import SegmentationConfig, SensorConfig
+from lidar3d.jit import lazy_njit
 from lidar3d.records import Scan, readonly
 from lidar3d.sensors import SensorModel
 
@@ -107,6 +108,37 @@ def _rows(scan: Scan, range_m: np.ndarray, sensor: SensorModel, use_ring_field: 
     return rows
 
 
+@lazy_njit
+def _fill_cells(
+    points: np.ndarray,
+    range_m: np.ndarray,
+    rows: np.ndarray,
+    valid: np.ndarray,
+    resolution_rad: float,
+    point_index: np.ndarray,
+    image_points: np.ndarray,
+    image_range: np.ndarray,
+) -> None:
+    """Write each ``valid`` point into its cell (in place): row ``rows[i]``, column
+    ``round(atan2(y, x) / resolution_rad) + C/2`` modulo ``C``. Where several points fall into one
+    cell the last in scan order stays, as in LeGO-LOAM. ``points`` (N, 3), ``range_m`` (N,),
+    ``rows`` (N,) int64, ``valid`` (N,) bool; ``point_index`` (R, C) int64 filled with -1,
+    ``image_points`` (R, C, 3) and ``image_range`` (R, C) filled with NaN."""
+    n_columns = point_index.shape[1]
+    for i in range(points.shape[0]):
+        if valid[i]:
+            column = int(np.rint(np.arctan2(points[i, 1], points[i, 0]) / resolution_rad)) + n_columns // 2
+            point_index[rows[i], column % n_columns] = i
+    for r in range(point_index.shape[0]):
+        for c in range(n_columns):
+            i = point_index[r, c]
+            if i >= 0:
+                image_points[r, c, 0] = points[i, 0]
+                image_points[r, c, 1] = points[i, 1]
+                image_points[r, c, 2] = points[i, 2]
+                image_range[r, c] = range_m[i]
+
+
 def project_scan(scan: Scan, sensor_config: SensorConfig, config: SegmentationConfig) -> RangeImage:
     """Project ``scan`` onto the range image of ``sensor_config.resolved_model``.
 
@@ -126,23 +158,13 @@ def project_scan(scan: Scan, sensor_config: SensorConfig, config: SegmentationCo
         valid = np.isfinite(range_m) & (range_m >= sensor_config.min_range_m) & (range_m <= sensor.max_range_m)
     rows = _rows(scan, range_m, sensor, config.use_ring_field)
     valid &= rows >= 0
-    index = np.flatnonzero(valid)
-    if index.size == 0:
+    if not valid.any():
         return RangeImage.empty(sensor)
-    kept = points[index]
     resolution_rad = np.deg2rad(sensor.azimuth_resolution_deg)
-    columns = np.rint(np.arctan2(kept[:, 1], kept[:, 0]) / resolution_rad).astype(np.int64)
-    columns += n_columns // 2
-    columns %= n_columns
-    cell = rows[index] * n_columns + columns
-    flat_index = np.full(n_rows * n_columns, -1, dtype=np.int64)
-    flat_index[cell] = index  # repeated cells: the last point written stays, as in LeGO-LOAM
-    point_index = flat_index.reshape(n_rows, n_columns)
-    occupied = point_index >= 0
+    point_index = np.full((n_rows, n_columns), -1, dtype=np.int64)
     image_points = np.full((n_rows, n_columns, 3), np.nan)
-    image_points[occupied] = points[point_index[occupied]]
     image_range = np.full((n_rows, n_columns), np.nan)
-    image_range[occupied] = range_m[point_index[occupied]]
+    _fill_cells(points, range_m, rows, valid, resolution_rad, point_index, image_points, image_range)
     return RangeImage(
         range_m=image_range,
         point_index=point_index,
