@@ -3,8 +3,9 @@ simulated scans: the same range image, ground, cluster labels, outliers and feat
 
 The references below are the previous implementations, kept here as oracles: the range image's
 cells filled by NumPy fancy indexing, the ground walk as row-by-row array work over all columns at
-once, the clusters as connected components of a sparse graph (``scipy.sparse.csgraph``), the greedy
-feature pick as a Python loop over the sorted candidates.
+once, the clusters as connected components of a sparse graph (``scipy.sparse.csgraph``), the
+curvature and rejection flags as array expressions, the less-flat voxels by ``np.unique``, the
+greedy feature pick as a Python loop over the candidates sorted by ``np.lexsort``.
 """
 
 import numpy as np
@@ -14,7 +15,7 @@ from scipy.sparse.csgraph import connected_components
 
 from lidar3d.config import Config
 from lidar3d.features import run_front_end
-from lidar3d.features.selection import _sorted_by_section, suppression_spans
+from lidar3d.features.selection import suppression_spans, voxel_centroids_per_ring
 from lidar3d.features.smoothness import compute_smoothness
 from lidar3d.segmentation import cluster_cells, ground, mark_ground, project_scan
 from lidar3d.segmentation.clustering import joins_by_beta
@@ -154,8 +155,75 @@ def _reference_walk(
             last_ground[accepted] = points[i + 1, accepted]
 
 
+def _reference_smoothness(segmentation, config):
+    """Curvature, in-section, section and pickable flags as array work: (curvature, in_section,
+    section, pickable)."""
+    range_m, row, w = segmentation.range_m, segmentation.row, config.curvature_half_window
+    n = range_m.shape[0]
+    index = np.arange(n)
+    first, stop = segmentation.ring_start[row], segmentation.ring_end[row]
+    in_section = (index - first >= w) & (stop - 1 - index >= w)
+    prefix = np.concatenate(([0.0], np.cumsum(range_m)))
+    window_sum = prefix[np.minimum(index + w + 1, n)] - prefix[np.maximum(index - w, 0)]
+    curvature = np.where(in_section, (window_sum - (2 * w + 1) * range_m) ** 2, 0.0)
+    span = np.maximum(stop - first - 2 * w, 1)
+    sections = config.sections_per_ring
+    section = np.where(in_section, row * sections + ((index - first - w) * sections) // span, -1)
+    pair_ok = (row[1:] == row[:-1]) & (np.abs(np.diff(segmentation.column)) < config.neighbour_max_column_gap)
+    step = np.diff(range_m)
+    far_then_near = np.zeros(n, dtype=np.int64)
+    near_then_far = np.zeros(n, dtype=np.int64)
+    far_then_near[:-1] = pair_ok & (-step > config.occlusion_depth_m)
+    near_then_far[:-1] = pair_ok & (step > config.occlusion_depth_m)
+    count_ftn = np.concatenate(([0], np.cumsum(far_then_near)))
+    count_ntf = np.concatenate(([0], np.cumsum(near_then_far)))
+    occluded = (count_ftn[np.minimum(index + w + 1, n)] - count_ftn[index]) > 0
+    occluded |= (count_ntf[index] - count_ntf[np.maximum(index - w - 1, 0)]) > 0
+    jump_prev = np.full(n, np.inf)
+    jump_next = np.full(n, np.inf)
+    jump_prev[1:] = np.abs(step)
+    jump_next[:-1] = np.abs(step)
+    limit = config.parallel_beam_ratio * range_m
+    parallel = (jump_prev > limit) & (jump_next > limit)
+    return curvature, in_section, section, in_section & ~occluded & ~parallel
+
+
+def _reference_voxel_centroids(points, ring, time_offset_s, leaf_m):
+    """Per-ring voxel centroids by ``np.unique`` and ``np.bincount``: (points, ring, time)."""
+    voxel = np.floor(points / leaf_m).astype(np.int64) + (1 << 16)
+    key = (((ring.astype(np.int64) << 17 | voxel[:, 0]) << 17 | voxel[:, 1]) << 17) | voxel[:, 2]
+    _, group = np.unique(key, return_inverse=True)
+    count = np.bincount(group).astype(np.float64)
+    centroid = np.stack([np.bincount(group, weights=points[:, k]) for k in range(3)], axis=1) / count[:, None]
+    group_ring = np.zeros(count.shape[0], dtype=np.uint16)
+    group_ring[group] = ring
+    return centroid, group_ring, np.bincount(group, weights=time_offset_s) / count
+
+
+def _reference_sorted_by_section(candidate, section, key, n_sections, lo, hi):
+    """Candidates sorted by (section, key) by ``np.lexsort``: indices, suppression spans, section starts."""
+    index = np.flatnonzero(candidate)
+    index = index[np.lexsort((key[index], section[index]))]
+    bounds = np.searchsorted(section[index], np.arange(n_sections + 1))
+    return index, lo[index], hi[index], bounds
+
+
+def _reference_release(image, ground_mask, supported, config):
+    """The release of ground contacts as it was: row by row from the top, every column at once."""
+    tan_theta = np.tan(np.deg2rad(config.cluster_angle_deg))
+    alpha = np.abs(np.diff(image.row_elevation_rad))
+    rows_with_ground = np.flatnonzero(ground_mask.any(axis=1))
+    top = min(int(rows_with_ground[-1]), ground_mask.shape[0] - 2) if rows_with_ground.size else -1
+    for i in range(top, -1, -1):
+        above_is_object = image.occupied[i + 1] & ~ground_mask[i + 1]
+        near = np.fmin(image.range_m[i], image.range_m[i + 1])
+        far = np.fmax(image.range_m[i], image.range_m[i + 1])
+        ground_mask[i] &= ~(above_is_object & ~supported[i] & joins_by_beta(near, far, alpha[i], tan_theta))
+
+
 def _reference_picks(segmentation, smoothness, config):
-    """The greedy pick as it was, in Python: (sharp, less sharp, flat) indices."""
+    """The greedy pick as it was, in Python, over the precomputed suppression spans: (sharp, less
+    sharp, flat) indices."""
     n = len(segmentation)
     curvature, section = smoothness.curvature, smoothness.section
     n_sections = segmentation.ring_start.shape[0] * config.sections_per_ring
@@ -163,10 +231,10 @@ def _reference_picks(segmentation, smoothness, config):
     flat_candidate = smoothness.pickable & segmentation.is_ground & (curvature < config.planar_threshold)
     lo, hi = suppression_spans(segmentation, config.curvature_half_window, config.neighbour_max_column_gap)
     edges, edge_lo, edge_hi, edge_bounds = (
-        a.tolist() for a in _sorted_by_section(edge_candidate, section, -curvature, n_sections, lo, hi)
+        a.tolist() for a in _reference_sorted_by_section(edge_candidate, section, -curvature, n_sections, lo, hi)
     )
     flats, flat_lo, flat_hi, flat_bounds = (
-        a.tolist() for a in _sorted_by_section(flat_candidate, section, curvature, n_sections, lo, hi)
+        a.tolist() for a in _reference_sorted_by_section(flat_candidate, section, curvature, n_sections, lo, hi)
     )
     picked = bytearray(n)
     ones = b"\x01" * (2 * config.curvature_half_window + 1)
@@ -236,6 +304,55 @@ def test_ground_walk_is_that_of_the_row_by_row_array_walk(scans, monkeypatch):
     for scan in scans:
         mark_ground(project_scan(scan, config.sensor, config.segmentation), config.segmentation, config.sensor)
     assert len(n_calls) == len(scans) and min(n_calls) > 5_000  # each scan walked, much ground found
+
+
+def test_ground_contacts_are_released_as_by_the_row_by_row_array_walk(scans, monkeypatch):
+    """Every release of ground contacts during ``mark_ground`` unmarks what the array version does."""
+    compiled = ground._release_contacts
+    n_released = []
+
+    def both(image, ground_mask, supported, config):
+        reference = ground_mask.copy()
+        before = int(ground_mask.sum())
+        compiled(image, ground_mask, supported, config)
+        _reference_release(image, reference, supported, config)
+        np.testing.assert_array_equal(ground_mask, reference)
+        n_released.append(before - int(ground_mask.sum()))
+
+    monkeypatch.setattr(ground, "_release_contacts", both)
+    config = Config()
+    for scan in scans:
+        mark_ground(project_scan(scan, config.sensor, config.segmentation), config.segmentation, config.sensor)
+    assert len(n_released) == len(scans) and sum(n_released) > 0  # contacts were released
+
+
+def test_smoothness_is_that_of_the_array_expressions(scans):
+    config = Config()
+    for scan in scans:
+        segmentation = run_front_end(scan, config).segmentation
+        smoothness = compute_smoothness(segmentation, config.features)
+        curvature, in_section, section, pickable = _reference_smoothness(segmentation, config.features)
+        assert pickable.sum() > 5_000
+        np.testing.assert_array_equal(smoothness.curvature, curvature)
+        np.testing.assert_array_equal(smoothness.in_section, in_section)
+        np.testing.assert_array_equal(smoothness.section, section)
+        np.testing.assert_array_equal(smoothness.pickable, pickable)
+
+
+def test_voxel_centroids_are_those_of_unique_and_bincount(scans):
+    """Ring-sorted (as the segmented cloud is: a hash table per ring) and shuffled (one table)."""
+    segmentation = run_front_end(scans[0], Config()).segmentation
+    points, ring, time_offset_s = segmentation.points, segmentation.row, segmentation.time_offset_s
+    shuffle = np.random.default_rng(0).permutation(len(points))
+    for order in (np.arange(len(points)), shuffle):
+        cloud = voxel_centroids_per_ring(points[order], ring[order], time_offset_s[order], 0.2)
+        centroid, group_ring, mean_time = _reference_voxel_centroids(
+            points[order], ring[order], time_offset_s[order], 0.2
+        )
+        assert 1_000 < len(centroid) < len(points) // 2  # voxels with several points
+        np.testing.assert_array_equal(cloud.points, centroid)
+        np.testing.assert_array_equal(cloud.ring, group_ring)
+        np.testing.assert_array_equal(cloud.time_offset_s, mean_time)
 
 
 def test_clusters_are_those_of_the_sparse_graph_components(scans):

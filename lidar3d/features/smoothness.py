@@ -1,6 +1,6 @@
 """Curvature ("smoothness") of the segmented cloud and rejection of unreliable points.
 
-LeGO-LOAM featureAssociation, vectorised over the whole segmented cloud:
+LeGO-LOAM featureAssociation, in one pass over the whole segmented cloud (a compiled kernel):
 
 * curvature (FA:621-641): c_i = (sum_{0<|j-i|<=w} r_j - 2w r_i)^2 with w = 5, the unnormalised form
   of LeGO-LOAM's code (paper Eq. 1 divides by |S| r_i); thresholds are therefore in m^2;
@@ -26,12 +26,15 @@ cloud, but only points w away from the ring ends are ever picked, so this change
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.stats import chi2
 
 from lidar3d.config import FeatureConfig
 from lidar3d.errors import ConfigError
 from lidar3d.features.records import Smoothness
+from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.segment import Segmentation
 
 __all__ = ["compute_smoothness", "noise_edge_threshold"]
@@ -59,43 +62,18 @@ def compute_smoothness(segmentation: Segmentation, config: FeatureConfig) -> Smo
             pickable=none.astype(bool),
             edge_threshold=config.edge_threshold,
         )
-    row = segmentation.row
-    index = np.arange(n)
-    first = segmentation.ring_start[row]  # first index of each point's ring
-    stop = segmentation.ring_end[row]  # one past its last
-    in_section = (index - first >= w) & (stop - 1 - index >= w)
-
-    prefix = np.concatenate(([0.0], np.cumsum(range_m)))
-    window_sum = prefix[np.minimum(index + w + 1, n)] - prefix[np.maximum(index - w, 0)]
-    curvature = np.where(in_section, (window_sum - (2 * w + 1) * range_m) ** 2, 0.0)
-
-    # sections: the ring's pickable span [first + w, stop - w) cut into equal point counts (FA:690-694)
-    span = np.maximum(stop - first - 2 * w, 1)
-    sections = config.sections_per_ring
-    section = np.where(in_section, row * sections + ((index - first - w) * sections) // span, -1)
-
-    # occlusion: pairs (i, i+1) in one ring, close in column, with a depth step
-    pair_ok = (row[1:] == row[:-1]) & (np.abs(np.diff(segmentation.column)) < config.neighbour_max_column_gap)
-    step = np.diff(range_m)  # r_{i+1} - r_i
-    far_then_near = np.zeros(n, dtype=np.int64)
-    near_then_far = np.zeros(n, dtype=np.int64)
-    far_then_near[:-1] = pair_ok & (-step > config.occlusion_depth_m)
-    near_then_far[:-1] = pair_ok & (step > config.occlusion_depth_m)
-    # point k is rejected by an event i with k in [i - w, i] (far_then_near) or [i + 1, i + w + 1]
-    count_ftn = np.concatenate(([0], np.cumsum(far_then_near)))
-    count_ntf = np.concatenate(([0], np.cumsum(near_then_far)))
-    occluded = (count_ftn[np.minimum(index + w + 1, n)] - count_ftn[index]) > 0
-    occluded |= (count_ntf[index] - count_ntf[np.maximum(index - w - 1, 0)]) > 0
-
-    # beam nearly parallel to the surface: big range jumps on both sides
-    jump_prev = np.full(n, np.inf)
-    jump_next = np.full(n, np.inf)
-    jump_prev[1:] = np.abs(step)
-    jump_next[:-1] = np.abs(step)
-    limit = config.parallel_beam_ratio * range_m
-    parallel = (jump_prev > limit) & (jump_next > limit)
-
-    pickable = in_section & ~occluded & ~parallel
+    curvature, in_section, section, pickable = _smoothness_kernel(
+        range_m,
+        segmentation.row,
+        segmentation.column,
+        segmentation.ring_start,
+        segmentation.ring_end,
+        w,
+        config.sections_per_ring,
+        config.neighbour_max_column_gap,
+        config.occlusion_depth_m,
+        config.parallel_beam_ratio,
+    )
     return Smoothness(
         curvature=curvature,
         in_section=in_section,
@@ -105,7 +83,70 @@ def compute_smoothness(segmentation: Segmentation, config: FeatureConfig) -> Smo
     )
 
 
+@lazy_njit
+def _smoothness_kernel(
+    range_m: np.ndarray,
+    row: np.ndarray,
+    column: np.ndarray,
+    ring_start: np.ndarray,
+    ring_end: np.ndarray,
+    w: int,
+    sections: int,
+    max_column_gap: int,
+    occlusion_depth_m: float,
+    parallel_beam_ratio: float,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Curvature, in-section flag, section and pickable flag of each of the (M,) points (module doc).
+
+    ``range_m`` (M,) m, ``row``, ``column`` (M,) int64 of the segmented cloud, in ring order;
+    ``ring_start``, ``ring_end`` (R,) int64, each ring's first and one-past-last index. The window
+    sums are differences of the running sum of the ranges, accumulated in index order.
+    """
+    n = range_m.shape[0]
+    prefix = np.zeros(n + 1)
+    for i in range(n):
+        prefix[i + 1] = prefix[i] + range_m[i]
+    # occlusion events of the pairs (i, i+1) in one ring, close in column, with a depth step, counted
+    far_then_near = np.zeros(n + 1, np.int64)  # far_then_near[k]: events i < k with r_i > r_{i+1} + depth
+    near_then_far = np.zeros(n + 1, np.int64)
+    for i in range(n):
+        ftn = ntf = 0
+        if i + 1 < n and row[i + 1] == row[i] and abs(column[i + 1] - column[i]) < max_column_gap:
+            step = range_m[i + 1] - range_m[i]
+            ftn = 1 if -step > occlusion_depth_m else 0
+            ntf = 1 if step > occlusion_depth_m else 0
+        far_then_near[i + 1] = far_then_near[i] + ftn
+        near_then_far[i + 1] = near_then_far[i] + ntf
+    curvature = np.zeros(n)
+    in_section = np.zeros(n, np.bool_)
+    section = np.full(n, -1, np.int64)
+    pickable = np.zeros(n, np.bool_)
+    for i in range(n):
+        first, stop = ring_start[row[i]], ring_end[row[i]]
+        if i - first < w or stop - 1 - i < w:
+            continue
+        in_section[i] = True
+        window_sum = prefix[min(i + w + 1, n)] - prefix[max(i - w, 0)]
+        curvature[i] = (window_sum - (2 * w + 1) * range_m[i]) ** 2
+        section[i] = row[i] * sections + ((i - first - w) * sections) // max(stop - first - 2 * w, 1)
+        # rejected by a far-then-near event in [i - w, i] or a near-then-far one in [i + 1, i + w + 1]
+        occluded = far_then_near[min(i + w + 1, n)] - far_then_near[i] > 0
+        occluded |= near_then_far[i] - near_then_far[max(i - w - 1, 0)] > 0
+        # beam nearly parallel to the surface: big range jumps on both sides
+        limit = parallel_beam_ratio * range_m[i]
+        jump_prev = abs(range_m[i] - range_m[i - 1]) if i > 0 else np.inf
+        jump_next = abs(range_m[i + 1] - range_m[i]) if i + 1 < n else np.inf
+        pickable[i] = not occluded and not (jump_prev > limit and jump_next > limit)
+    return curvature, in_section, section, pickable
+
+
 _CHI2_1_MEDIAN = float(chi2.median(1))
+
+
+@functools.lru_cache(maxsize=8)
+def _chi2_1_upper_quantile(rate: float) -> float:
+    """The chi^2_1 value exceeded with probability ``rate`` (scipy's ``isf``, 50 us a call)."""
+    return float(chi2.isf(rate, 1))
 
 
 def noise_edge_threshold(curvature_m2: np.ndarray, config: FeatureConfig) -> float:
@@ -115,4 +156,4 @@ def noise_edge_threshold(curvature_m2: np.ndarray, config: FeatureConfig) -> flo
     if config.edge_noise_false_rate <= 0.0 or curvature_m2.size == 0:
         return config.edge_threshold
     noise_scale_m2 = float(np.median(curvature_m2)) / _CHI2_1_MEDIAN  # 2w(2w+1) sigma^2
-    return max(config.edge_threshold, noise_scale_m2 * float(chi2.isf(config.edge_noise_false_rate, 1)))
+    return max(config.edge_threshold, noise_scale_m2 * _chi2_1_upper_quantile(config.edge_noise_false_rate))

@@ -11,7 +11,8 @@ difference of the two rows' beam elevations for vertical ones (LeGO-LOAM uses th
 spacing; the table handles non-uniform sensors such as the VLP-32C). LeGO-LOAM grows each cluster by
 breadth-first search; here the joining test runs on the whole image at once and the clusters are the
 connected components of the resulting graph, found by union-find in a compiled kernel (numba, cached
-on disk; integer work only). A cluster is kept when it has
+on disk) that also makes the joining test, pair by pair, with the arithmetic of
+:func:`joins_by_beta`. A cluster is kept when it has
 at least ``min_cluster_points`` points, or at least ``min_cluster_points_multi_ring`` points on at
 least ``min_cluster_rings`` rows (IP:430-450); the others are outliers.
 """
@@ -40,25 +41,48 @@ def joins_by_beta(near_m: np.ndarray, far_m: np.ndarray, alpha_rad: np.ndarray |
 
 
 @lazy_njit
-def _components(cells: np.ndarray, horizontal: np.ndarray, vertical: np.ndarray) -> tuple[np.ndarray, int]:
-    """Connected components of the candidate cells, by union-find; ``cells``: (K,) flat indices of
-    the candidate cells in row-major order; ``horizontal`` (R, C): a cell joins its right neighbour
-    (wrapping); ``vertical`` (R-1, C): a cell joins the one above. Returns (K,) int64 component of
-    each cell, numbered 0, 1, ... in row-major order of each component's first cell, and their number.
-    A component's root is its first cell (the smaller root becomes the parent)."""
-    n_rows, n_columns = horizontal.shape
+def _cluster_kernel(
+    range_m: np.ndarray,
+    candidate: np.ndarray,
+    sin_cos_horizontal: np.ndarray,
+    sin_cos_vertical: np.ndarray,
+    tan_theta: float,
+    min_points: int,
+    min_points_multi_ring: int,
+    min_rings: int,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Labels and outlier flags of the candidate cells (see :func:`cluster_cells`).
+
+    ``range_m``, ``candidate`` (R, C); ``sin_cos_horizontal`` (2,) the sine and cosine of the
+    column width; ``sin_cos_vertical`` (R-1, 2) those of the elevation step from each row to the
+    next. The components are found by union-find over the joined neighbour pairs (a cell and its
+    right neighbour, wrapping; a cell and the one above), a root being its component's first cell
+    in row-major order (the smaller root becomes the parent); they are numbered in that order.
+    """
+    n_rows, n_columns = range_m.shape
     parent = np.arange(n_rows * n_columns)
     for r in range(n_rows):
         for c in range(n_columns):
+            if not candidate[r, c]:
+                continue
             node = r * n_columns + c
             for direction in range(2):  # 0: the right neighbour, 1: the one above
-                if direction == 0 and horizontal[r, c]:
-                    other = r * n_columns + (c + 1) % n_columns
-                elif direction == 1 and r + 1 < n_rows and vertical[r, c]:
-                    other = node + n_columns
+                if direction == 0:
+                    other_r, other_c = r, (c + 1) % n_columns
+                    sin_alpha, cos_alpha = sin_cos_horizontal[0], sin_cos_horizontal[1]
+                elif r + 1 < n_rows:
+                    other_r, other_c = r + 1, c
+                    sin_alpha, cos_alpha = sin_cos_vertical[r, 0], sin_cos_vertical[r, 1]
                 else:
                     continue
-                a, b = node, other
+                if not candidate[other_r, other_c]:
+                    continue
+                # joins_by_beta, with the same arithmetic
+                near = min(range_m[r, c], range_m[other_r, other_c])
+                far = max(range_m[r, c], range_m[other_r, other_c])
+                if not near * sin_alpha > tan_theta * (far - near * cos_alpha):
+                    continue
+                a, b = node, other_r * n_columns + other_c
                 while parent[a] != a:
                     parent[a] = parent[parent[a]]  # path halving
                     a = parent[a]
@@ -66,18 +90,42 @@ def _components(cells: np.ndarray, horizontal: np.ndarray, vertical: np.ndarray)
                     parent[b] = parent[parent[b]]
                     b = parent[b]
                 parent[max(a, b)] = min(a, b)
+    # components numbered densely in row-major order of their first cell; size and rows of each
     dense_of_root = np.full(n_rows * n_columns, -1, np.int64)
-    component = np.empty(cells.size, np.int64)
+    component = np.full(n_rows * n_columns, -1, np.int64)
+    size = np.zeros(n_rows * n_columns, np.int64)
+    n_component_rows = np.zeros(n_rows * n_columns, np.int64)
+    last_row = np.full(n_rows * n_columns, -1, np.int64)  # rows are walked in order: count each once
     n_components = 0
-    for k in range(cells.size):
-        root = cells[k]
+    for node in range(n_rows * n_columns):
+        if not candidate[node // n_columns, node % n_columns]:
+            continue
+        root = node
         while parent[root] != root:
             root = parent[root]
         if dense_of_root[root] < 0:
             dense_of_root[root] = n_components
             n_components += 1
-        component[k] = dense_of_root[root]
-    return component, n_components
+        k = dense_of_root[root]
+        component[node] = k
+        size[k] += 1
+        if last_row[k] != node // n_columns:
+            last_row[k] = node // n_columns
+            n_component_rows[k] += 1
+    new_id = np.full(n_components, -1, np.int32)
+    n_kept = 0
+    for k in range(n_components):
+        if size[k] >= min_points or (size[k] >= min_points_multi_ring and n_component_rows[k] >= min_rings):
+            new_id[k] = n_kept
+            n_kept += 1
+    label = np.full((n_rows, n_columns), -1, np.int32)
+    outlier = np.zeros((n_rows, n_columns), np.bool_)
+    for node in range(n_rows * n_columns):
+        k = component[node]
+        if k >= 0:
+            label[node // n_columns, node % n_columns] = new_id[k]
+            outlier[node // n_columns, node % n_columns] = new_id[k] < 0
+    return label, outlier
 
 
 def cluster_cells(
@@ -92,39 +140,15 @@ def cluster_cells(
     """
     if not 0.0 < config.cluster_angle_deg < 90.0:
         raise ConfigError(f"config segmentation.cluster_angle_deg: must be in (0, 90), got {config.cluster_angle_deg}")
-    n_rows, n_columns = image.shape
-    candidate = image.occupied & ~ground_mask
-    range_m = np.where(candidate, image.range_m, np.nan)
-    tan_theta = np.tan(np.deg2rad(config.cluster_angle_deg))
-
-    right_m = np.roll(range_m, -1, axis=1)  # horizontal neighbour, wrapping at the last column
-    horizontal = joins_by_beta(
-        np.fmin(range_m, right_m), np.fmax(range_m, right_m), image.azimuth_resolution_rad, tan_theta
+    alpha_rows = np.abs(np.diff(image.row_elevation_rad))  # (R-1,)
+    alpha_column = image.azimuth_resolution_rad
+    return _cluster_kernel(
+        image.range_m,
+        image.occupied & ~ground_mask,
+        np.array([np.sin(alpha_column), np.cos(alpha_column)]),
+        np.stack([np.sin(alpha_rows), np.cos(alpha_rows)], axis=1),
+        float(np.tan(np.deg2rad(config.cluster_angle_deg))),
+        config.min_cluster_points,
+        config.min_cluster_points_multi_ring,
+        config.min_cluster_rings,
     )
-    up_m = range_m[1:]
-    alpha_rows = np.abs(np.diff(image.row_elevation_rad))[:, None]  # (R-1, 1)
-    vertical = joins_by_beta(np.fmin(range_m[:-1], up_m), np.fmax(range_m[:-1], up_m), alpha_rows, tan_theta)
-    # fmin/fmax return the other operand where one is NaN, so re-exclude pairs with an empty cell
-    horizontal &= candidate & np.roll(candidate, -1, axis=1)
-    vertical &= candidate[:-1] & candidate[1:]
-
-    cells = np.flatnonzero(candidate.ravel())
-    n_nodes = n_rows * n_columns
-    label = np.full(n_nodes, -1, dtype=np.int32)
-    outlier = np.zeros(n_nodes, dtype=bool)
-    if cells.size == 0:
-        return label.reshape(n_rows, n_columns), outlier.reshape(n_rows, n_columns)
-    # components of candidate cells numbered densely, in row-major order of their first cell
-    dense, n_clusters = _components(cells, horizontal, vertical)
-    size = np.bincount(dense, minlength=n_clusters)
-    touched = np.zeros((n_clusters, n_rows), dtype=bool)
-    touched[dense, cells // n_columns] = True
-    n_rings = touched.sum(axis=1)
-    keep = (size >= config.min_cluster_points) | (
-        (size >= config.min_cluster_points_multi_ring) & (n_rings >= config.min_cluster_rings)
-    )
-    new_id = np.full(n_clusters, -1, dtype=np.int32)
-    new_id[keep] = np.arange(int(keep.sum()), dtype=np.int32)
-    label[cells] = new_id[dense]
-    outlier[cells] = ~keep[dense]
-    return label.reshape(n_rows, n_columns), outlier.reshape(n_rows, n_columns)

@@ -46,7 +46,6 @@ import numpy as np
 from lidar3d.config import SegmentationConfig, SensorConfig
 from lidar3d.errors import ConfigError
 from lidar3d.jit import lazy_njit
-from lidar3d.segmentation.clustering import joins_by_beta
 from lidar3d.segmentation.range_image import RangeImage
 
 __all__ = ["R_base_lidar_from_mount", "ground_row_count", "mark_ground"]
@@ -337,14 +336,28 @@ def _on_surface(
 
 def _release_contacts(image: RangeImage, ground: np.ndarray, supported: np.ndarray, config: SegmentationConfig) -> None:
     """Unmark (in place) unsupported ground on the same surface as the object cell above it."""
-    n_rows = ground.shape[0]
-    tan_theta = np.tan(np.deg2rad(config.cluster_angle_deg))
-    range_m = image.range_m
-    alpha = np.abs(np.diff(image.row_elevation_rad))
-    occupied = image.occupied
     rows_with_ground = np.flatnonzero(ground.any(axis=1))
-    top = min(int(rows_with_ground[-1]), n_rows - 2) if rows_with_ground.size else -1
-    for i in range(top, -1, -1):  # top down, so that a released cell can release the one below
-        above_is_object = occupied[i + 1] & ~ground[i + 1]
-        near, far = np.fmin(range_m[i], range_m[i + 1]), np.fmax(range_m[i], range_m[i + 1])
-        ground[i] &= ~(above_is_object & ~supported[i] & joins_by_beta(near, far, alpha[i], tan_theta))
+    if rows_with_ground.size == 0:
+        return
+    alpha = np.abs(np.diff(image.row_elevation_rad))  # (R-1,) elevation step to the row above
+    # each row's sine and cosine as joins_by_beta takes them (a NumPy scalar each: the same bits)
+    sin_cos = np.array([(np.sin(a), np.cos(a)) for a in alpha]).reshape(-1, 2)
+    top = min(int(rows_with_ground[-1]), ground.shape[0] - 2)
+    _release_kernel(ground, supported, image.range_m, sin_cos, float(np.tan(np.deg2rad(config.cluster_angle_deg))), top)
+
+
+@lazy_njit
+def _release_kernel(
+    ground: np.ndarray, supported: np.ndarray, range_m: np.ndarray, sin_cos: np.ndarray, tan_theta: float, top: int
+) -> None:
+    """The release of :func:`_release_contacts`, column by column from row ``top`` down, so that a
+    released cell can release the one below. ``ground``, ``supported``, ``range_m`` (R, C) (NaN
+    where empty); ``sin_cos`` (R-1, 2) of the elevation step from each row to the next."""
+    for c in range(ground.shape[1]):
+        for i in range(top, -1, -1):
+            if not ground[i, c] or supported[i, c] or ground[i + 1, c] or np.isnan(range_m[i + 1, c]):
+                continue  # released only: unsupported ground below an object cell
+            near = min(range_m[i, c], range_m[i + 1, c])
+            far = max(range_m[i, c], range_m[i + 1, c])
+            if near * sin_cos[i, 0] > tan_theta * (far - near * sin_cos[i, 1]):  # joins_by_beta
+                ground[i, c] = False
