@@ -10,6 +10,8 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from lidar3d.config import Config, FeatureConfig
 from lidar3d.features.records import FeatureCloud, FeatureSet
 from lidar3d.features.selection import select_features
@@ -115,4 +117,4 @@ def _ground_cloud(segmentation: Segmentation) -> FeatureCloud:
     idx = segmentation.image.point_index[segmentation.ground_mask]
     idx = idx[idx >= 0]
     scan = segmentation.scan
-    return FeatureCloud(scan.points[idx], scan.ring[idx], scan.time_offset_s[idx])
+    return FeatureCloud(np.take(scan.points, idx, axis=0), scan.ring[idx], scan.time_offset_s[idx])

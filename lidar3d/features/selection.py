@@ -228,7 +228,7 @@ def select_features(segmentation: Segmentation, smoothness: Smoothness, config: 
     scan = segmentation.scan
     n = len(segmentation)
     outliers = FeatureCloud(
-        points=scan.points[segmentation.outlier_scan_index],
+        points=np.take(scan.points, segmentation.outlier_scan_index, axis=0),
         ring=segmentation.outlier_row,
         time_offset_s=scan.time_offset_s[segmentation.outlier_scan_index],
     )
@@ -263,15 +263,18 @@ def select_features(segmentation: Segmentation, smoothness: Smoothness, config: 
     def cloud(index) -> FeatureCloud:
         index = np.asarray(index, dtype=np.int64)
         return FeatureCloud(
-            points=segmentation.points[index], ring=segmentation.row[index], time_offset_s=time_offset_s[index]
+            points=np.take(segmentation.points, index, axis=0),
+            ring=segmentation.row[index],
+            time_offset_s=time_offset_s[index],
         )
 
     less_flat_mask = smoothness.in_section.copy()
     less_flat_mask[less_sharp] = False
+    less_flat_index = np.flatnonzero(less_flat_mask)
     less_flat = voxel_centroids_per_ring(
-        segmentation.points[less_flat_mask],
-        segmentation.row[less_flat_mask],
-        time_offset_s[less_flat_mask],
+        np.take(segmentation.points, less_flat_index, axis=0),
+        segmentation.row[less_flat_index],
+        time_offset_s[less_flat_index],
         config.less_flat_voxel_m,
     )
     return FeatureSet(

