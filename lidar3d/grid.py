@@ -23,7 +23,7 @@ import numpy as np
 from lidar3d.config import Config, load_config
 from lidar3d.errors import BagError, ConfigError, OutputError
 from lidar3d.io.map_server import trinary_image, write_map_server
-from lidar3d.io.pcd import read_pcd
+from lidar3d.io.pcd import read_pcd_fields
 from lidar3d.io.run_folder import read_run_folder
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import read_tum
@@ -116,12 +116,12 @@ def grid_run(
         log.warning("%s: a partial run (stopped after %d scans): gridding the scans it has", run, summary.scans)
     config = load_config(run / "config.toml")
     trajectory = read_tum(run / "trajectory_tum.txt")
-    map_points, _ = read_pcd(run / "map.pcd")
+    map_points, _ = read_pcd_fields(run / "map.pcd")
     if not len(map_points) or not len(trajectory):
         raise OutputError(f"{run}: the run has no map points or no poses: nothing to grid")
     dynamic_keys = np.zeros(0, np.int64)
     if summary.output("dynamic.pcd") is not None:
-        dynamic_points, _ = read_pcd(run / "dynamic.pcd")
+        dynamic_points, _ = read_pcd_fields(run / "dynamic.pcd")
         dynamic_keys = np.unique(voxel_keys(dynamic_points, config.mapping.map_voxel_m))
     inputs = [_input_path(run, p) for p in summary.inputs]
     ground, placed_scans = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
