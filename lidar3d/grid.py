@@ -31,6 +31,7 @@ from lidar3d.mapping.deskew import deskew_scan, trajectory_sweep_twist
 from lidar3d.mapping.occupancy_grid import (
     GridParams,
     GroundModel,
+    LowestPerCell,
     OccupancyGrid,
     OccupancyGridBuilder,
     lowest_per_cell,
@@ -212,14 +213,17 @@ def _ground_of_scans(
     """The local ground fitted to the ground cells the segmentation marks in every scan (the lowest
     per ``GROUND_CELL_M`` cell over all scans; None when no scan has any), and the placed scans with
     their ground marked, in :func:`_placed_scans` order (kept, so the bag is read and deskewed once)."""
-    lowest, scans = [], []
+    positions = trajectory.positions_m[:, :2]
+    reach = config.sensor.resolved_model.max_range_m  # no point of a scan lies farther from its pose
+    lowest = LowestPerCell(np.array([positions.min(axis=0) - reach, positions.max(axis=0) + reach]), GROUND_CELL_M)
+    scans = []
     for placed in _placed_scans(inputs, config, trajectory, dynamic_keys):
-        lowest.append(lowest_per_cell(placed.points_world[placed.ground], GROUND_CELL_M))
+        lowest.add(placed.points_world[placed.ground])
         scans.append(placed)
-    every = np.concatenate(lowest) if lowest else np.zeros((0, 3))
+    every = lowest.points()
     if not len(every):
         return None, scans
-    return GroundModel.from_points(lowest_per_cell(every, GROUND_CELL_M), GROUND_CELL_M), scans
+    return GroundModel.from_points(every, GROUND_CELL_M), scans
 
 
 def _input_path(run: Path, recorded: str) -> Path:

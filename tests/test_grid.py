@@ -24,7 +24,13 @@ from lidar3d.io.map_server import (
 )
 from lidar3d.io.run_folder import check_run_folder
 from lidar3d.io.trajectory_io import read_tum
-from lidar3d.mapping.occupancy_grid import GridParams, GroundModel, OccupancyGridBuilder, lowest_per_cell
+from lidar3d.mapping.occupancy_grid import (
+    GridParams,
+    GroundModel,
+    LowestPerCell,
+    OccupancyGridBuilder,
+    lowest_per_cell,
+)
 from lidar3d.run import run_bag
 
 # ---------------------------------------------------------------- ray casting on hand-made scenes
@@ -400,3 +406,24 @@ def test_lowest_per_cell_keeps_one_point_per_cell():
     lowest = lowest_per_cell(points, 1.0)
     assert sorted(map(tuple, lowest)) == sorted([(0.8, 0.1, 0.5), (1.5, 0.5, 2.0), (-0.5, 0.5, 3.0)])
     assert lowest_per_cell(np.zeros((0, 3)), 1.0).shape == (0, 3)
+
+
+def test_the_lowest_per_cell_gathered_cloud_by_cloud_is_that_of_all_clouds_at_once():
+    rng = np.random.default_rng(5)
+    clouds = []
+    for _ in range(12):
+        cloud = np.column_stack([rng.uniform(-30.0, 40.0, (3000, 2)), rng.integers(0, 4, 3000) * 0.5])
+        cloud[:50, :2] = np.floor(cloud[:50, :2]) + 0.25  # equal heights in a cell: the first added stays
+        cloud[50:60, :2] = np.floor(cloud[50:60, :2])  # on the cell's edge
+        clouds.append(cloud)
+    clouds.append(np.zeros((0, 3)))
+    lowest = LowestPerCell(np.array([[-30.0, -30.0], [40.0, 40.0]]), 1.0)
+    for cloud in clouds:
+        lowest.add(cloud)
+    every = np.concatenate(clouds)
+    np.testing.assert_array_equal(lowest.points(), lowest_per_cell(every, 1.0))
+    # as grid_run gathered it before: each cloud's lowest, then the lowest of those
+    per_cloud = np.concatenate([lowest_per_cell(cloud, 1.0) for cloud in clouds])
+    np.testing.assert_array_equal(lowest.points(), lowest_per_cell(per_cloud, 1.0))
+    with pytest.raises(ValueError, match="1 of 2 points lie outside the bounds"):
+        lowest.add(np.array([[0.0, 0.0, 0.0], [45.0, 0.0, 0.0]]))

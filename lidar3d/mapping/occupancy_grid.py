@@ -24,7 +24,7 @@ import numpy as np
 
 from lidar3d.jit import lazy_njit
 
-__all__ = ["GridParams", "GroundModel", "OccupancyGrid", "OccupancyGridBuilder", "lowest_per_cell"]
+__all__ = ["GridParams", "GroundModel", "LowestPerCell", "OccupancyGrid", "OccupancyGridBuilder", "lowest_per_cell"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -151,6 +151,55 @@ def lowest_per_cell(points_world: np.ndarray, cell_m: float) -> np.ndarray:
         return points_world.reshape(0, 3)
     ij = np.floor(points_world[:, :2] / cell_m).astype(np.int64)
     return points_world[_lowest_index(ij - ij.min(axis=0), points_world[:, 2])]
+
+
+class LowestPerCell:
+    """The lowest point per ``cell_m`` square of many world point clouds, gathered cloud by cloud
+    (:meth:`add`) without holding them: :meth:`points` is :func:`lowest_per_cell` of all the clouds
+    at once, the same points in the same order (cell by cell, x then y; of equal heights the first
+    added).
+
+    Args:
+        bounds_xy_m: (2,2) [[x_min, y_min], [x_max, y_max]]: every point added lies within.
+        cell_m: cell side.
+    """
+
+    def __init__(self, bounds_xy_m: np.ndarray, cell_m: float) -> None:
+        self.cell_m = float(cell_m)
+        bounds = np.floor(np.asarray(bounds_xy_m, float) / self.cell_m).astype(np.int64)
+        self._corner_ij = bounds[0] - 1  # a cell of margin on each side
+        nx, ny = (int(v) for v in bounds[1] - self._corner_ij + 2)
+        self._lowest = np.full((nx, ny, 3), np.nan)  # per cell its lowest point so far, NaN for none
+
+    def add(self, points_world: np.ndarray) -> None:
+        """Gather the (N,3) world points (within the bounds, else :class:`ValueError`)."""
+        points_world = np.ascontiguousarray(points_world, dtype=np.float64).reshape(-1, 3)
+        outside = _keep_lowest(points_world, self.cell_m, self._corner_ij[0], self._corner_ij[1], self._lowest)
+        if outside:
+            raise ValueError(f"{outside} of {len(points_world)} points lie outside the bounds of the cells")
+
+    def points(self) -> np.ndarray:
+        """(M,3) the lowest point of each cell that has one."""
+        return self._lowest[~np.isnan(self._lowest[..., 2])]
+
+
+@lazy_njit
+def _keep_lowest(points_world: np.ndarray, cell_m: float, corner_i: int, corner_j: int, lowest: np.ndarray) -> int:
+    """Keep in ``lowest`` (nx, ny, 3; NaN where empty) each (N,3) point lower than its cell's (cell
+    ``floor(x / cell_m) - corner_i``, ``floor(y / cell_m) - corner_j``), in place; an equal height
+    keeps the point already there. Returns the number of points outside ``lowest``, left out."""
+    nx, ny = lowest.shape[0], lowest.shape[1]
+    outside = 0
+    for k in range(points_world.shape[0]):
+        i = int(np.floor(points_world[k, 0] / cell_m)) - corner_i
+        j = int(np.floor(points_world[k, 1] / cell_m)) - corner_j
+        if not (0 <= i < nx and 0 <= j < ny):
+            outside += 1
+        elif not lowest[i, j, 2] <= points_world[k, 2]:  # also where the cell is empty (NaN)
+            lowest[i, j, 0] = points_world[k, 0]
+            lowest[i, j, 1] = points_world[k, 1]
+            lowest[i, j, 2] = points_world[k, 2]
+    return outside
 
 
 def _lowest_index(ij: np.ndarray, z: np.ndarray) -> np.ndarray:
