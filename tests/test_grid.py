@@ -135,6 +135,30 @@ def test_map_server_files_follow_its_conventions(tmp_path):
     assert ((p > 0.65) == (back.image == OCCUPIED_VALUE)).all() and ((p < 0.196) == (back.image == FREE_VALUE)).all()
 
 
+def test_the_preview_shrinks_a_large_grid_keeping_every_obstacle_and_draws_the_path():
+    import io
+
+    from PIL import Image
+
+    from lidar3d.export.grid_preview import _MARGIN_PX, MAX_SIDE_PX, grid_preview_png
+
+    image = np.full((1500, 3000), FREE_VALUE, np.uint8)  # 150 x 300 m of 0.1 m cells: shrunk 3 times
+    image[700, 1201] = OCCUPIED_VALUE  # one obstacle cell
+    image[:, :10] = UNKNOWN_VALUE
+    path = np.array([[-100.0, 20.0], [100.0, 20.0]])  # y = 20 m: row (50 - 20) / 0.1 = 300
+    png = grid_preview_png(image, 0.1, np.array([-150.0, -100.0]), path, title="t")
+    preview = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+    gray = preview[..., 0].astype(int)
+    is_map = (preview[..., 0] == preview[..., 1]) & (preview[..., 1] == preview[..., 2])
+    assert MAX_SIDE_PX // 2 < preview.shape[1] < MAX_SIDE_PX + 200
+    assert ((gray == OCCUPIED_VALUE) & is_map).sum() >= 1  # the lone obstacle survives the shrinking
+    assert ((gray == UNKNOWN_VALUE) & is_map).sum() >= 3 * 500  # the unknown strip, 10 cells wide
+    orange = (preview[..., 0] == 255) & (preview[..., 1] == 127) & (preview[..., 2] == 14)
+    top_px, metres_per_px = _MARGIN_PX[1], 0.3  # the map's first row, below the title; shrunk 3 times
+    path_row = top_px + round((50.0 - 20.0) / metres_per_px)  # the map's top edge is y = -100 + 150 m
+    assert orange[path_row - 1 : path_row + 2].sum() >= 200.0 / metres_per_px  # the 200 m of path
+
+
 # ---------------------------------------------------------------- lidar3d grid end to end
 
 
