@@ -102,6 +102,12 @@ def test_points_the_segmentation_calls_ground_are_no_obstacle_even_inside_the_ba
     assert grids[True].log_odds[i[1], j[1]] > 0  # the unmarked point is still an obstacle
 
 
+def test_a_ground_mask_of_another_length_is_refused():
+    builder = OccupancyGridBuilder(GridParams(), _ground(lambda xy: np.zeros(len(xy))), np.array([[-5, -5], [5, 5]]))
+    with pytest.raises(ValueError, match=r"on_ground \(N,\), got \(2, 3\), \(3,\)"):
+        builder.add(np.array([0.0, 0.0, 1.0]), np.ones((2, 3)), np.zeros(3, bool))
+
+
 def test_log_odds_stay_clamped():
     params = GridParams(resolution_m=0.2, clamp_log_odds=2.0)
     builder = OccupancyGridBuilder(params, _ground(lambda xy: np.zeros(len(xy))), np.array([[-20, -20], [20, 20]]))

@@ -302,17 +302,20 @@ class OccupancyGridBuilder:
         still free the band before them)."""
         p = self.params
         ground = self.ground
+        points_world = np.ascontiguousarray(points_world, dtype=np.float64)
+        n = len(points_world)
+        on_ground = np.zeros(n, bool) if on_ground is None else np.asarray(on_ground, bool)
+        if points_world.shape != (n, 3) or on_ground.shape != (n,):  # the kernel does not check its indices
+            raise ValueError(f"points must be (N, 3) and on_ground (N,), got {points_world.shape}, {on_ground.shape}")
         sweep = self._n_sweeps
         self._n_sweeps += 1
-        if not len(points_world):
+        if not n:
             return
-        points_world = np.ascontiguousarray(points_world, dtype=np.float64)
         delta = points_world[:, :2] - origin_world[:2]
         length = np.hypot(delta[:, 0], delta[:, 1])
         azimuth = np.arctan2(delta[:, 1], delta[:, 0])
         n_bins = p.azimuth_bins
         bins = (np.floor((azimuth + np.pi) * (n_bins / (2 * np.pi))).astype(np.int64)) % n_bins
-        on_ground = np.zeros(len(points_world), bool) if on_ground is None else np.asarray(on_ground, bool)
         sensor_height_m = float(origin_world[2] - ground.height_at(origin_world[None, :2])[0])
         sensor_cell = (np.asarray(origin_world[:2], float) - self.origin_xy_m) / p.resolution_m
         _ray_cast_sweep(
