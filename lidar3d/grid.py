@@ -23,7 +23,7 @@ import numpy as np
 from lidar3d.config import Config, load_config
 from lidar3d.errors import BagError, ConfigError, OutputError
 from lidar3d.io.map_server import trinary_image, write_map_server
-from lidar3d.io.pcd import read_pcd
+from lidar3d.io.pcd import read_pcd_fields
 from lidar3d.io.run_folder import read_run_folder
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import read_tum
@@ -31,6 +31,7 @@ from lidar3d.mapping.deskew import deskew_scan, trajectory_sweep_twist
 from lidar3d.mapping.occupancy_grid import (
     GridParams,
     GroundModel,
+    LowestPerCell,
     OccupancyGrid,
     OccupancyGridBuilder,
     lowest_per_cell,
@@ -116,12 +117,12 @@ def grid_run(
         log.warning("%s: a partial run (stopped after %d scans): gridding the scans it has", run, summary.scans)
     config = load_config(run / "config.toml")
     trajectory = read_tum(run / "trajectory_tum.txt")
-    map_points, _ = read_pcd(run / "map.pcd")
+    map_points, _ = read_pcd_fields(run / "map.pcd")
     if not len(map_points) or not len(trajectory):
         raise OutputError(f"{run}: the run has no map points or no poses: nothing to grid")
     dynamic_keys = np.zeros(0, np.int64)
     if summary.output("dynamic.pcd") is not None:
-        dynamic_points, _ = read_pcd(run / "dynamic.pcd")
+        dynamic_points, _ = read_pcd_fields(run / "dynamic.pcd")
         dynamic_keys = np.unique(voxel_keys(dynamic_points, config.mapping.map_voxel_m))
     inputs = [_input_path(run, p) for p in summary.inputs]
     ground, placed_scans = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
@@ -212,14 +213,17 @@ def _ground_of_scans(
     """The local ground fitted to the ground cells the segmentation marks in every scan (the lowest
     per ``GROUND_CELL_M`` cell over all scans; None when no scan has any), and the placed scans with
     their ground marked, in :func:`_placed_scans` order (kept, so the bag is read and deskewed once)."""
-    lowest, scans = [], []
+    positions = trajectory.positions_m[:, :2]
+    reach = config.sensor.resolved_model.max_range_m  # no point of a scan lies farther from its pose
+    lowest = LowestPerCell(np.array([positions.min(axis=0) - reach, positions.max(axis=0) + reach]), GROUND_CELL_M)
+    scans = []
     for placed in _placed_scans(inputs, config, trajectory, dynamic_keys):
-        lowest.append(lowest_per_cell(placed.points_world[placed.ground], GROUND_CELL_M))
+        lowest.add(placed.points_world[placed.ground])
         scans.append(placed)
-    every = np.concatenate(lowest) if lowest else np.zeros((0, 3))
+    every = lowest.points()
     if not len(every):
         return None, scans
-    return GroundModel.from_points(lowest_per_cell(every, GROUND_CELL_M), GROUND_CELL_M), scans
+    return GroundModel.from_points(every, GROUND_CELL_M), scans
 
 
 def _input_path(run: Path, recorded: str) -> Path:

@@ -300,3 +300,8 @@ def test_numpy_pcd_reader_equals_open3d_and_refuses_a_truncated_file(tmp_path):
     (tmp_path / "cut.pcd").write_bytes(data[:-100])
     with pytest.raises(OutputError, match=r"cut\.pcd: truncated point cloud \(493 of 500 points\)"):
         read_pcd_fields(tmp_path / "cut.pcd")
+    write_pcd(tmp_path / "empty.pcd", np.zeros((0, 3)), intensity=np.zeros(0), label=np.zeros(0, np.int32))
+    points, fields = read_pcd_fields(tmp_path / "empty.pcd")  # header only, DATA ascii: no Open3D needed
+    assert points.shape == (0, 3) and points.dtype == np.float64
+    assert fields["intensity"].dtype == np.float32 and fields["label"].dtype == np.int32
+    assert len(fields["intensity"]) == len(fields["label"]) == 0

@@ -1,5 +1,9 @@
 """The 2-D occupancy grid: ray casting in a band above the local ground, the map_server files, and
-``lidar3d grid`` end to end with its bad inputs."""
+``lidar3d grid`` end to end with its bad inputs.
+
+The ray casting is a numba kernel; the NumPy version it replaced is kept below
+(:class:`_ReferenceBuilder`) as its oracle: the same log-odds, bit for bit.
+"""
 
 import dataclasses
 
@@ -20,7 +24,13 @@ from lidar3d.io.map_server import (
 )
 from lidar3d.io.run_folder import check_run_folder
 from lidar3d.io.trajectory_io import read_tum
-from lidar3d.mapping.occupancy_grid import GridParams, GroundModel, OccupancyGridBuilder, lowest_per_cell
+from lidar3d.mapping.occupancy_grid import (
+    GridParams,
+    GroundModel,
+    LowestPerCell,
+    OccupancyGridBuilder,
+    lowest_per_cell,
+)
 from lidar3d.run import run_bag
 
 # ---------------------------------------------------------------- ray casting on hand-made scenes
@@ -92,6 +102,12 @@ def test_points_the_segmentation_calls_ground_are_no_obstacle_even_inside_the_ba
     assert grids[True].log_odds[i[1], j[1]] > 0  # the unmarked point is still an obstacle
 
 
+def test_a_ground_mask_of_another_length_is_refused():
+    builder = OccupancyGridBuilder(GridParams(), _ground(lambda xy: np.zeros(len(xy))), np.array([[-5, -5], [5, 5]]))
+    with pytest.raises(ValueError, match=r"on_ground \(N,\), got \(2, 3\), \(3,\)"):
+        builder.add(np.array([0.0, 0.0, 1.0]), np.ones((2, 3)), np.zeros(3, bool))
+
+
 def test_log_odds_stay_clamped():
     params = GridParams(resolution_m=0.2, clamp_log_odds=2.0)
     builder = OccupancyGridBuilder(params, _ground(lambda xy: np.zeros(len(xy))), np.array([[-20, -20], [20, 20]]))
@@ -123,6 +139,30 @@ def test_map_server_files_follow_its_conventions(tmp_path):
     # map_server's reading: p = (255 - v) / 255, occupied above 0.65, free below 0.196, else unknown.
     p = (255 - back.image.astype(float)) / 255
     assert ((p > 0.65) == (back.image == OCCUPIED_VALUE)).all() and ((p < 0.196) == (back.image == FREE_VALUE)).all()
+
+
+def test_the_preview_shrinks_a_large_grid_keeping_every_obstacle_and_draws_the_path():
+    import io
+
+    from PIL import Image
+
+    from lidar3d.export.grid_preview import _MARGIN_PX, MAX_SIDE_PX, grid_preview_png
+
+    image = np.full((1500, 3000), FREE_VALUE, np.uint8)  # 150 x 300 m of 0.1 m cells: shrunk 3 times
+    image[700, 1201] = OCCUPIED_VALUE  # one obstacle cell
+    image[:, :10] = UNKNOWN_VALUE
+    path = np.array([[-100.0, 20.0], [100.0, 20.0]])  # y = 20 m: row (50 - 20) / 0.1 = 300
+    png = grid_preview_png(image, 0.1, np.array([-150.0, -100.0]), path, title="t")
+    preview = np.asarray(Image.open(io.BytesIO(png)).convert("RGB"))
+    gray = preview[..., 0].astype(int)
+    is_map = (preview[..., 0] == preview[..., 1]) & (preview[..., 1] == preview[..., 2])
+    assert MAX_SIDE_PX // 2 < preview.shape[1] < MAX_SIDE_PX + 200
+    assert ((gray == OCCUPIED_VALUE) & is_map).sum() >= 1  # the lone obstacle survives the shrinking
+    assert ((gray == UNKNOWN_VALUE) & is_map).sum() >= 3 * 500  # the unknown strip, 10 cells wide
+    orange = (preview[..., 0] == 255) & (preview[..., 1] == 127) & (preview[..., 2] == 14)
+    top_px, metres_per_px = _MARGIN_PX[1], 0.3  # the map's first row, below the title; shrunk 3 times
+    path_row = top_px + round((50.0 - 20.0) / metres_per_px)  # the map's top edge is y = -100 + 150 m
+    assert orange[path_row - 1 : path_row + 2].sum() >= 200.0 / metres_per_px  # the 200 m of path
 
 
 # ---------------------------------------------------------------- lidar3d grid end to end
@@ -221,6 +261,154 @@ def test_a_run_whose_bag_is_gone_names_it(loop_run, tmp_path, capsys):
     assert "/nowhere/drive.bag" in capsys.readouterr().err
 
 
+# ---------------------------------------------------------------- the kernel against the array version
+
+
+class _ReferenceBuilder(OccupancyGridBuilder):
+    """The ray casting as it was, in NumPy (whole arrays per sweep): the oracle of the kernel."""
+
+    def add(self, origin_world, points_world, on_ground=None):
+        p = self.params
+        ground = self.ground
+        low, high = p.band_m
+        sweep = self._n_sweeps
+        self._n_sweeps += 1
+        if not len(points_world):
+            return
+        delta = points_world[:, :2] - origin_world[:2]
+        length = np.hypot(delta[:, 0], delta[:, 1])
+        ok = (length > p.resolution_m) & (length <= p.max_range_m)
+        points_world, delta, length = points_world[ok], delta[ok], length[ok]
+        not_ground = np.ones(len(points_world), bool) if on_ground is None else ~np.asarray(on_ground, bool)[ok]
+        h0 = float(origin_world[2] - ground.height_at(origin_world[None, :2])[0])
+        h1 = points_world[:, 2] - ground.height_at(points_world[:, :2])
+        slope = h1 - h0
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s_low, s_high = (low - h0) / slope, (high - h0) / slope
+        s_enter = np.where(slope > 0, s_low, s_high)
+        s_leave = np.where(slope > 0, s_high, s_low)
+        flat = np.abs(slope) < 1e-9
+        inside_at_start = (h0 >= low) & (h0 <= high)
+        s_enter = np.where(flat, 0.0 if inside_at_start else np.inf, np.clip(s_enter, 0.0, None))
+        s_leave = np.where(flat, 1.0 if inside_at_start else -np.inf, np.minimum(s_leave, 1.0))
+        end_free = length - p.resolution_m
+        free_from = s_enter * length
+        free_to = np.minimum(s_leave * length, end_free)
+        occupied = (h1 >= low) & (h1 <= high) & not_ground
+        blocked_at = np.where(occupied, end_free, np.inf)
+        free_cells = self._free_cells(origin_world[:2], delta, free_from, free_to, blocked_at)
+        xy = points_world[occupied, :2]
+        ij = np.floor((xy - self.origin_xy_m) / p.resolution_m).astype(np.int64)
+        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
+        hit_cells = ij[inside, 0] * self.shape[1] + ij[inside, 1]
+        mark, log_odds = self._mark, self._log_odds
+        if free_cells.size:
+            mark[free_cells] = sweep
+            log_odds[free_cells] = np.maximum(log_odds[free_cells] + p.miss_log_odds, -p.clamp_log_odds)
+        if hit_cells.size:
+            step = np.where(mark[hit_cells] == sweep, p.hit_log_odds - p.miss_log_odds, p.hit_log_odds)
+            log_odds[hit_cells] = np.minimum(log_odds[hit_cells] + step, p.clamp_log_odds)
+            mark[hit_cells] = sweep
+
+    def _free_cells(self, origin_xy, delta, free_from, free_to, blocked_at):
+        p = self.params
+        n_bins = p.azimuth_bins
+        azimuth = np.arctan2(delta[:, 1], delta[:, 0])
+        bins = (np.floor((azimuth + np.pi) * (n_bins / (2 * np.pi))).astype(np.int64)) % n_bins
+        order = np.argsort(bins, kind="stable")
+        sorted_bins = bins[order]
+        first = np.flatnonzero(np.r_[True, sorted_bins[1:] != sorted_bins[:-1]])
+        useful = free_to > free_from
+        start = np.full(n_bins, np.inf)
+        reach = np.zeros(n_bins)
+        if first.size:
+            start[sorted_bins[first]] = np.minimum.reduceat(np.where(useful, free_from, np.inf)[order], first)
+            reach[sorted_bins[first]] = np.minimum(
+                np.maximum.reduceat(np.where(useful, free_to, 0.0)[order], first),
+                np.minimum.reduceat(blocked_at[order], first),
+            )
+        step = p.resolution_m
+        spread_m = 2 * np.pi / n_bins
+        cells = []
+        level, far = 0, np.inf
+        while far > step:
+            near = 0.7 * step / (spread_m * 2 ** (level + 1)) if level < 12 else 0.0
+            chosen = np.arange(0, n_bins, 2**level)
+            lo = np.maximum(start[chosen], near)
+            hi = np.minimum(reach[chosen], far)
+            keep = hi > lo
+            if keep.any():
+                cells.append(self._cast(origin_xy, chosen[keep], lo[keep], hi[keep]))
+            level, far = level + 1, near
+        return np.concatenate(cells) if cells else np.zeros(0, np.int64)
+
+    def _cast(self, origin_xy, bins, lo, hi):
+        step = self.params.resolution_m
+        first = np.ceil(lo / step).astype(np.int64)
+        count = np.floor(hi / step).astype(np.int64) - first + 1
+        ok = count > 0
+        bins, first, count = bins[ok], first[ok], count[ok]
+        ray = np.repeat(np.arange(bins.size), count)
+        index = (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count - first, count)).astype(np.float32)
+        angle = (bins + 0.5) * (2 * np.pi / self.params.azimuth_bins) - np.pi
+        start = (origin_xy - self.origin_xy_m) / step
+        nx, ny = self.shape
+        i = np.clip((start[0] + np.cos(angle).astype(np.float32)[ray] * index).astype(np.int64), 0, nx - 1)
+        j = np.clip((start[1] + np.sin(angle).astype(np.float32)[ray] * index).astype(np.int64), 0, ny - 1)
+        return i * ny + j
+
+
+@pytest.mark.parametrize(
+    "params",
+    [GridParams(), GridParams(resolution_m=0.05, band_m=(0.2, 1.5)), GridParams(resolution_m=0.25, clamp_log_odds=2.0)],
+    ids=["defaults", "fine", "coarse"],
+)
+def test_the_ray_casting_kernel_gives_the_array_version_s_log_odds_bit_for_bit(params):
+    # Random sweeps over a hilly ground: walls, ground hits, beams at the sensor's own height (flat),
+    # points beyond the range and outside the grid, some points marked ground; enough to clamp.
+    rng = np.random.default_rng(7)
+
+    def height(xy):
+        return 0.1 * xy[:, 0] - 0.04 * xy[:, 1] + 0.3 * np.sin(xy[:, 0] / 5.0)
+
+    ground = _ground(height)
+    bounds = np.array([[-25.0, -20.0], [25.0, 20.0]])
+    builders = [cls(params, ground, bounds) for cls in (OccupancyGridBuilder, _ReferenceBuilder)]
+    posts_xy = rng.uniform(-15.0, 15.0, (200, 2))  # seen by every sweep
+    posts = np.column_stack([posts_xy, height(posts_xy) + 1.0])
+    for sweep in range(30):
+        sensor = np.array([rng.uniform(-5, 5), rng.uniform(-5, 5), 0.0])
+        sensor[2] = height(sensor[None, :2])[0] + 1.8
+        n = 4000
+        azimuth = rng.uniform(-np.pi, np.pi, n)
+        distance = rng.choice([rng.uniform(0.0, 50.0), 12.0], n) * rng.uniform(0.2, 1.0, n)
+        xy = sensor[:2] + distance[:, None] * np.column_stack([np.cos(azimuth), np.sin(azimuth)])
+        z = height(xy) + rng.choice([0.0, 0.5, 1.0, 2.5], n) + rng.normal(0.0, 0.05, n)
+        # beams level with the sensor's height above the ground: the "flat" case
+        z[: n // 20] = ground.height_at(xy[: n // 20]) + sensor[2] - ground.height_at(sensor[None, :2])[0]
+        points = np.concatenate([np.column_stack([xy, z]), posts])
+        on_ground = rng.random(len(points)) < 0.3 if sweep % 2 else None
+        for builder in builders:
+            builder.add(sensor, points, on_ground)
+        if sweep == 3:
+            for builder in builders:
+                builder.add(sensor, np.zeros((0, 3)))
+    new, reference = (builder.grid() for builder in builders)
+    np.testing.assert_array_equal(new.log_odds, reference.log_odds)
+    np.testing.assert_array_equal(new.observed, reference.observed)
+    assert (new.log_odds == params.clamp_log_odds).any() and (new.log_odds == -params.clamp_log_odds).any()
+
+
+def test_lidar3d_grid_writes_the_array_version_s_map_byte_for_byte(loop_run, tmp_path, monkeypatch):
+    _, run = loop_run
+    new = grid_run(run, tmp_path / "new")
+    monkeypatch.setattr("lidar3d.grid.OccupancyGridBuilder", _ReferenceBuilder)
+    reference = grid_run(run, tmp_path / "reference")
+    np.testing.assert_array_equal(new.grid.log_odds, reference.grid.log_odds)
+    assert new.pgm.read_bytes() == reference.pgm.read_bytes()
+    assert new.yaml.read_bytes() == reference.yaml.read_bytes()
+
+
 # ---------------------------------------------------------------- the local ground model
 
 
@@ -248,3 +436,24 @@ def test_lowest_per_cell_keeps_one_point_per_cell():
     lowest = lowest_per_cell(points, 1.0)
     assert sorted(map(tuple, lowest)) == sorted([(0.8, 0.1, 0.5), (1.5, 0.5, 2.0), (-0.5, 0.5, 3.0)])
     assert lowest_per_cell(np.zeros((0, 3)), 1.0).shape == (0, 3)
+
+
+def test_the_lowest_per_cell_gathered_cloud_by_cloud_is_that_of_all_clouds_at_once():
+    rng = np.random.default_rng(5)
+    clouds = []
+    for _ in range(12):
+        cloud = np.column_stack([rng.uniform(-30.0, 40.0, (3000, 2)), rng.integers(0, 4, 3000) * 0.5])
+        cloud[:50, :2] = np.floor(cloud[:50, :2]) + 0.25  # equal heights in a cell: the first added stays
+        cloud[50:60, :2] = np.floor(cloud[50:60, :2])  # on the cell's edge
+        clouds.append(cloud)
+    clouds.append(np.zeros((0, 3)))
+    lowest = LowestPerCell(np.array([[-30.0, -30.0], [40.0, 40.0]]), 1.0)
+    for cloud in clouds:
+        lowest.add(cloud)
+    every = np.concatenate(clouds)
+    np.testing.assert_array_equal(lowest.points(), lowest_per_cell(every, 1.0))
+    # as grid_run gathered it before: each cloud's lowest, then the lowest of those
+    per_cloud = np.concatenate([lowest_per_cell(cloud, 1.0) for cloud in clouds])
+    np.testing.assert_array_equal(lowest.points(), lowest_per_cell(per_cloud, 1.0))
+    with pytest.raises(ValueError, match="1 of 2 points lie outside the bounds"):
+        lowest.add(np.array([[0.0, 0.0, 0.0], [45.0, 0.0, 0.0]]))

@@ -26,10 +26,9 @@ cloud, but only points w away from the ring ends are ever picked, so this change
 
 from __future__ import annotations
 
-import functools
+from functools import cache
 
 import numpy as np
-from scipy.stats import chi2
 
 from lidar3d.config import FeatureConfig
 from lidar3d.errors import ConfigError
@@ -140,13 +139,14 @@ def _smoothness_kernel(
     return curvature, in_section, section, pickable
 
 
-_CHI2_1_MEDIAN = float(chi2.median(1))
+@cache
+def _chi2_1(false_rate: float) -> tuple[float, float]:
+    """The median of chi-square with one degree of freedom and its quantile exceeded with
+    probability ``false_rate``. scipy.stats is imported here, at the first scan, not with the
+    package: its import (0.4-0.6 s) is wasted on the commands that only deskew (``lidar3d grid``)."""
+    from scipy.stats import chi2
 
-
-@functools.lru_cache(maxsize=8)
-def _chi2_1_upper_quantile(rate: float) -> float:
-    """The chi^2_1 value exceeded with probability ``rate`` (scipy's ``isf``, 50 us a call)."""
-    return float(chi2.isf(rate, 1))
+    return float(chi2.median(1)), float(chi2.isf(false_rate, 1))
 
 
 def noise_edge_threshold(curvature_m2: np.ndarray, config: FeatureConfig) -> float:
@@ -155,5 +155,6 @@ def noise_edge_threshold(curvature_m2: np.ndarray, config: FeatureConfig) -> flo
     the median curvature) exceeds on a smooth surface with probability ``edge_noise_false_rate``."""
     if config.edge_noise_false_rate <= 0.0 or curvature_m2.size == 0:
         return config.edge_threshold
-    noise_scale_m2 = float(np.median(curvature_m2)) / _CHI2_1_MEDIAN  # 2w(2w+1) sigma^2
-    return max(config.edge_threshold, noise_scale_m2 * _chi2_1_upper_quantile(config.edge_noise_false_rate))
+    median, exceeded = _chi2_1(config.edge_noise_false_rate)
+    noise_scale_m2 = float(np.median(curvature_m2)) / median  # 2w(2w+1) sigma^2
+    return max(config.edge_threshold, noise_scale_m2 * exceeded)

@@ -3,8 +3,8 @@
 :func:`write_pcd` writes the uncompressed binary layout with NumPy, byte for byte as Open3D's tensor
 API writes it (its header, float32 / int32 fields interleaved per point, the extra fields in name
 order), without importing Open3D
-(about 1.5 s per process). :func:`read_pcd_fields` reads that layout with NumPy alone and falls back
-to :func:`read_pcd` (Open3D) for other layouts.
+(about 1.5 s per process). :func:`read_pcd_fields` reads that layout, and the header-only PCD of an
+empty cloud, with NumPy alone and falls back to :func:`read_pcd` (Open3D) for other layouts.
 """
 
 from __future__ import annotations
@@ -101,7 +101,8 @@ _PCD_TYPES = {
 
 
 def read_pcd_fields(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """As :func:`read_pcd`: (N,3) float64 points and the other fields; binary PCDs read by NumPy."""
+    """As :func:`read_pcd`: (N,3) float64 points and the other fields; binary PCDs and empty clouds
+    (what :func:`write_pcd` writes) read by NumPy, other layouts by Open3D."""
     path = Path(path)
     try:
         with open(path, "rb") as stream:
@@ -126,9 +127,14 @@ def read_pcd_fields(path: str | Path) -> tuple[np.ndarray, dict[str, np.ndarray]
         dtype = np.dtype([(name, _PCD_TYPES[(t, size)]) for name, t, size in zip(names, types, sizes)])
     except (KeyError, ValueError, IndexError):
         return read_pcd(path)
-    if header["DATA"] != ["binary"] or any(c != 1 for c in counts) or not {"x", "y", "z"} <= set(names):
+    if any(c != 1 for c in counts) or not {"x", "y", "z"} <= set(names):
         return read_pcd(path)
-    record = np.fromfile(path, dtype=dtype, count=n, offset=offset)
+    if header["DATA"] == ["ascii"] and n == 0:
+        record = np.zeros(0, dtype)
+    elif header["DATA"] == ["binary"]:
+        record = np.fromfile(path, dtype=dtype, count=n, offset=offset)
+    else:
+        return read_pcd(path)
     if len(record) != n:
         raise OutputError(f"{path}: truncated point cloud ({len(record)} of {n} points)")
     points = np.column_stack([record["x"], record["y"], record["z"]]).astype(np.float64)

@@ -10,6 +10,10 @@ the beams are gathered per azimuth bin (the farthest free reach of the bin, cast
 counts once: occupied wins over free. Each sweep adds ``hit_log_odds`` to its occupied cells and
 ``miss_log_odds`` to its free ones, clamped to ``[-clamp, clamp]`` (as OctoMap and ROS gmapping
 do). Frames: world = the run's map frame (x, y in the plane, z up).
+
+A sweep is cast by one compiled kernel (numba, :func:`lidar3d.jit.lazy_njit`): per point and per
+sample, no arrays of every sample as the NumPy version it replaced built (the same log-odds, bit for
+bit: ``tests/test_grid.py`` keeps that version as the oracle).
 """
 
 from __future__ import annotations
@@ -18,7 +22,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["GridParams", "GroundModel", "OccupancyGrid", "OccupancyGridBuilder", "lowest_per_cell"]
+from lidar3d.jit import lazy_njit
+
+__all__ = ["GridParams", "GroundModel", "LowestPerCell", "OccupancyGrid", "OccupancyGridBuilder", "lowest_per_cell"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,6 +153,55 @@ def lowest_per_cell(points_world: np.ndarray, cell_m: float) -> np.ndarray:
     return points_world[_lowest_index(ij - ij.min(axis=0), points_world[:, 2])]
 
 
+class LowestPerCell:
+    """The lowest point per ``cell_m`` square of many world point clouds, gathered cloud by cloud
+    (:meth:`add`) without holding them: :meth:`points` is :func:`lowest_per_cell` of all the clouds
+    at once, the same points in the same order (cell by cell, x then y; of equal heights the first
+    added).
+
+    Args:
+        bounds_xy_m: (2,2) [[x_min, y_min], [x_max, y_max]]: every point added lies within.
+        cell_m: cell side.
+    """
+
+    def __init__(self, bounds_xy_m: np.ndarray, cell_m: float) -> None:
+        self.cell_m = float(cell_m)
+        bounds = np.floor(np.asarray(bounds_xy_m, float) / self.cell_m).astype(np.int64)
+        self._corner_ij = bounds[0] - 1  # a cell of margin on each side
+        nx, ny = (int(v) for v in bounds[1] - self._corner_ij + 2)
+        self._lowest = np.full((nx, ny, 3), np.nan)  # per cell its lowest point so far, NaN for none
+
+    def add(self, points_world: np.ndarray) -> None:
+        """Gather the (N,3) world points (within the bounds, else :class:`ValueError`)."""
+        points_world = np.ascontiguousarray(points_world, dtype=np.float64).reshape(-1, 3)
+        outside = _keep_lowest(points_world, self.cell_m, self._corner_ij[0], self._corner_ij[1], self._lowest)
+        if outside:
+            raise ValueError(f"{outside} of {len(points_world)} points lie outside the bounds of the cells")
+
+    def points(self) -> np.ndarray:
+        """(M,3) the lowest point of each cell that has one."""
+        return self._lowest[~np.isnan(self._lowest[..., 2])]
+
+
+@lazy_njit
+def _keep_lowest(points_world: np.ndarray, cell_m: float, corner_i: int, corner_j: int, lowest: np.ndarray) -> int:
+    """Keep in ``lowest`` (nx, ny, 3; NaN where empty) each (N,3) point lower than its cell's (cell
+    ``floor(x / cell_m) - corner_i``, ``floor(y / cell_m) - corner_j``), in place; an equal height
+    keeps the point already there. Returns the number of points outside ``lowest``, left out."""
+    nx, ny = lowest.shape[0], lowest.shape[1]
+    outside = 0
+    for k in range(points_world.shape[0]):
+        i = int(np.floor(points_world[k, 0] / cell_m)) - corner_i
+        j = int(np.floor(points_world[k, 1] / cell_m)) - corner_j
+        if not (0 <= i < nx and 0 <= j < ny):
+            outside += 1
+        elif not lowest[i, j, 2] <= points_world[k, 2]:  # also where the cell is empty (NaN)
+            lowest[i, j, 0] = points_world[k, 0]
+            lowest[i, j, 1] = points_world[k, 1]
+            lowest[i, j, 2] = points_world[k, 2]
+    return outside
+
+
 def _lowest_index(ij: np.ndarray, z: np.ndarray) -> np.ndarray:
     """Index of the lowest ``z`` among the points of each cell (N,2) ``ij`` (non-negative)."""
     flat = ij[:, 0] * (int(ij[:, 1].max()) + 1) + ij[:, 1]
@@ -235,6 +290,11 @@ class OccupancyGridBuilder:
         self._log_odds = np.zeros(self.shape[0] * self.shape[1], np.float32)
         self._mark = np.full(self._log_odds.size, -1, np.int32)
         self._n_sweeps = 0
+        n_bins = params.azimuth_bins
+        bin_angle_rad = (np.arange(n_bins) + 0.5) * (2 * np.pi / n_bins) - np.pi
+        # Direction of each bin's centre line, float32: a sample k cells out is k * (cos, sin) cells away.
+        self._bin_direction = np.stack([np.cos(bin_angle_rad), np.sin(bin_angle_rad)], axis=1).astype(np.float32)
+        self._levels = _casting_levels(res, n_bins)
 
     def add(self, origin_world: np.ndarray, points_world: np.ndarray, on_ground: np.ndarray | None = None) -> None:
         """Ray cast one sweep: sensor position (3,) and its (N,3) points, world frame; ``on_ground``
@@ -242,46 +302,50 @@ class OccupancyGridBuilder:
         still free the band before them)."""
         p = self.params
         ground = self.ground
-        low, high = p.band_m
+        points_world = np.ascontiguousarray(points_world, dtype=np.float64)
+        n = len(points_world)
+        on_ground = np.zeros(n, bool) if on_ground is None else np.asarray(on_ground, bool)
+        if points_world.shape != (n, 3) or on_ground.shape != (n,):  # the kernel does not check its indices
+            raise ValueError(f"points must be (N, 3) and on_ground (N,), got {points_world.shape}, {on_ground.shape}")
         sweep = self._n_sweeps
         self._n_sweeps += 1
-        if not len(points_world):
+        if not n:
             return
         delta = points_world[:, :2] - origin_world[:2]
         length = np.hypot(delta[:, 0], delta[:, 1])
-        ok = (length > p.resolution_m) & (length <= p.max_range_m)
-        points_world, delta, length = points_world[ok], delta[ok], length[ok]
-        not_ground = np.ones(len(points_world), bool) if on_ground is None else ~np.asarray(on_ground, bool)[ok]
-        h0 = float(origin_world[2] - ground.height_at(origin_world[None, :2])[0])
-        h1 = points_world[:, 2] - ground.height_at(points_world[:, :2])
-        # Where along the beam (fraction s of its length) its height above ground is in the band.
-        slope = h1 - h0
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s_low, s_high = (low - h0) / slope, (high - h0) / slope
-        s_enter = np.where(slope > 0, s_low, s_high)
-        s_leave = np.where(slope > 0, s_high, s_low)
-        flat = np.abs(slope) < 1e-9
-        inside_at_start = (h0 >= low) & (h0 <= high)
-        s_enter = np.where(flat, 0.0 if inside_at_start else np.inf, np.clip(s_enter, 0.0, None))
-        s_leave = np.where(flat, 1.0 if inside_at_start else -np.inf, np.minimum(s_leave, 1.0))
-        end_free = length - p.resolution_m  # the last cell before the point is free at most
-        free_from = s_enter * length
-        free_to = np.minimum(s_leave * length, end_free)
-        occupied = (h1 >= low) & (h1 <= high) & not_ground
-        # The nearest obstacle in the band ends the free space of its azimuth: beams that pass over a
-        # car or a low wall say nothing about the band below them.
-        blocked_at = np.where(occupied, end_free, np.inf)
-        free_cells = self._free_cells(origin_world[:2], delta, free_from, free_to, blocked_at)
-        hit_cells = self._cells(points_world[occupied, :2])
-        mark, log_odds = self._mark, self._log_odds
-        if free_cells.size:
-            mark[free_cells] = sweep
-            log_odds[free_cells] = np.maximum(log_odds[free_cells] + p.miss_log_odds, -p.clamp_log_odds)
-        if hit_cells.size:
-            # A cell counts once per sweep (a repeated index is written once): occupied wins over free.
-            step = np.where(mark[hit_cells] == sweep, p.hit_log_odds - p.miss_log_odds, p.hit_log_odds)
-            log_odds[hit_cells] = np.minimum(log_odds[hit_cells] + step, p.clamp_log_odds)
-            mark[hit_cells] = sweep
+        azimuth = np.arctan2(delta[:, 1], delta[:, 0])
+        n_bins = p.azimuth_bins
+        bins = (np.floor((azimuth + np.pi) * (n_bins / (2 * np.pi))).astype(np.int64)) % n_bins
+        sensor_height_m = float(origin_world[2] - ground.height_at(origin_world[None, :2])[0])
+        sensor_cell = (np.asarray(origin_world[:2], float) - self.origin_xy_m) / p.resolution_m
+        _ray_cast_sweep(
+            points_world,
+            length,
+            bins,
+            on_ground,
+            ground.origin_xy_m,
+            ground.cell_m,
+            ground.height_m,
+            ground.slope,
+            sensor_height_m,
+            p.band_m[0],
+            p.band_m[1],
+            p.resolution_m,
+            p.max_range_m,
+            self.origin_xy_m,
+            sensor_cell,
+            self._bin_direction,
+            self._levels,
+            np.float32(p.miss_log_odds),
+            np.float32(-p.clamp_log_odds),
+            p.hit_log_odds,
+            p.hit_log_odds - p.miss_log_odds,
+            p.clamp_log_odds,
+            sweep,
+            self.shape[1],
+            self._log_odds,
+            self._mark,
+        )
 
     def grid(self) -> OccupancyGrid:
         """The grid so far."""
@@ -292,70 +356,137 @@ class OccupancyGridBuilder:
             (self._mark >= 0).reshape(self.shape),
         )
 
-    def _cells(self, xy: np.ndarray) -> np.ndarray:
-        """Flat indices of the cells of (N,2) world x, y inside the grid."""
-        ij = np.floor((xy - self.origin_xy_m) / self.params.resolution_m).astype(np.int64)
-        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
-        return ij[inside, 0] * self.shape[1] + ij[inside, 1]
 
-    def _free_cells(
-        self,
-        origin_xy: np.ndarray,
-        delta: np.ndarray,
-        free_from: np.ndarray,
-        free_to: np.ndarray,
-        blocked_at: np.ndarray,
-    ) -> np.ndarray:
-        """Flat indices of the cells the sweep's beams cross in the band: per azimuth bin from the
-        nearest entry to the farthest reach, but not past the bin's nearest obstacle
-        (``blocked_at``, (N,) distance, inf for none), sampled every cell along the bin's direction;
-        near the sensor, where the bins crowd, only every 2nd, 4th, ... bin is sampled (the bins stay
-        about a cell apart)."""
-        p = self.params
-        n_bins = p.azimuth_bins
-        azimuth = np.arctan2(delta[:, 1], delta[:, 0])
-        bins = (np.floor((azimuth + np.pi) * (n_bins / (2 * np.pi))).astype(np.int64)) % n_bins
-        order = np.argsort(bins, kind="stable")
-        sorted_bins = bins[order]
-        first = np.flatnonzero(np.r_[True, sorted_bins[1:] != sorted_bins[:-1]])
-        useful = free_to > free_from
-        start = np.full(n_bins, np.inf)
-        reach = np.zeros(n_bins)
-        start[sorted_bins[first]] = np.minimum.reduceat(np.where(useful, free_from, np.inf)[order], first)
-        reach[sorted_bins[first]] = np.minimum(
-            np.maximum.reduceat(np.where(useful, free_to, 0.0)[order], first),
-            np.minimum.reduceat(blocked_at[order], first),
+def _casting_levels(resolution_m: float, azimuth_bins: int) -> np.ndarray:
+    """(L,3) the casting levels of a sweep's bins, outermost first: (near, far, stride) per row. Level
+    ``l`` casts every ``2**l``-th bin between ``near`` and ``far`` metres from the sensor, so that near
+    the sensor, where the bins crowd, the sampled bins stay about a cell apart; the last level reaches
+    the sensor."""
+    spread_m = 2 * np.pi / azimuth_bins  # bin spacing per metre of distance
+    levels = []
+    level, far = 0, np.inf
+    while far > resolution_m:
+        near = 0.7 * resolution_m / (spread_m * 2 ** (level + 1)) if level < 12 else 0.0
+        levels.append((near, far, 2**level))
+        level, far = level + 1, near
+    return np.array(levels, dtype=np.float64).reshape(-1, 3)
+
+
+@lazy_njit
+def _ray_cast_sweep(
+    points_world: np.ndarray,
+    length_m: np.ndarray,
+    azimuth_bin: np.ndarray,
+    on_ground: np.ndarray,
+    ground_origin_xy_m: np.ndarray,
+    ground_cell_m: float,
+    ground_height_m: np.ndarray,
+    ground_slope: np.ndarray,
+    sensor_height_m: float,
+    band_low_m: float,
+    band_high_m: float,
+    resolution_m: float,
+    max_range_m: float,
+    grid_origin_xy_m: np.ndarray,
+    sensor_cell: np.ndarray,
+    bin_direction: np.ndarray,
+    levels: np.ndarray,
+    miss_log_odds: np.float32,
+    free_floor: np.float32,
+    hit_log_odds: float,
+    hit_after_free: float,
+    clamp_log_odds: float,
+    sweep: int,
+    ny: int,
+    log_odds: np.ndarray,
+    mark: np.ndarray,
+) -> None:
+    """Ray cast one sweep into the flat grid ``log_odds`` (float32) / ``mark`` (int32, the last sweep
+    that updated each cell), in place: see the module docstring and :class:`OccupancyGridBuilder`.
+
+    Per point (``points_world`` (N,3), its plane distance ``length_m`` (N,) and ``azimuth_bin`` (N,)
+    from the sensor, ``on_ground`` (N,) bool): the fractions of the beam inside the band from the
+    ground under it (``ground_*``: the arrays of :class:`GroundModel`) and the sensor's height above
+    ground; per azimuth bin the nearest entry (``start``), the farthest free reach and the nearest
+    obstacle. Then each bin's centre line is sampled every cell from ``start`` to its reach, level by
+    level (``levels`` from :func:`_casting_levels`; ``bin_direction`` (B,2) float32 cos, sin;
+    ``sensor_cell`` (2,) the sensor in cell units from the grid's corner). Free cells take
+    ``miss_log_odds`` (float32 arithmetic, floored at ``free_floor``), occupied cells
+    ``hit_log_odds`` (``hit_after_free`` where the sweep freed them first; float64, capped at
+    ``clamp_log_odds``); a cell counts once per sweep."""
+    n_bins = bin_direction.shape[0]
+    gx, gy = ground_height_m.shape[0], ground_height_m.shape[1]
+    nx = log_odds.size // ny
+    inside_at_start = band_low_m <= sensor_height_m <= band_high_m
+    start = np.full(n_bins, np.inf)
+    reach = np.zeros(n_bins)
+    blocked = np.full(n_bins, np.inf)
+    hits = np.empty(points_world.shape[0], np.int64)
+    n_hits = 0
+    for k in range(points_world.shape[0]):
+        length = length_m[k]
+        if not (length > resolution_m and length <= max_range_m):
+            continue
+        x, y, z = points_world[k, 0], points_world[k, 1], points_world[k, 2]
+        # The ground under the point: its cell's plane (GroundModel.height_at).
+        u = (x - ground_origin_xy_m[0]) / ground_cell_m
+        v = (y - ground_origin_xy_m[1]) / ground_cell_m
+        gi = min(max(int(np.floor(u)), 0), gx - 1)
+        gj = min(max(int(np.floor(v)), 0), gy - 1)
+        ground_z = (
+            ground_height_m[gi, gj]
+            + ground_slope[gi, gj, 0] * ((u - gi - 0.5) * ground_cell_m)
+            + ground_slope[gi, gj, 1] * ((v - gj - 0.5) * ground_cell_m)
         )
-        step = p.resolution_m
-        spread_m = 2 * np.pi / n_bins  # bin spacing per metre of distance
-        cells = []
-        level, far = 0, np.inf
-        while far > step:
-            near = 0.7 * step / (spread_m * 2 ** (level + 1)) if level < 12 else 0.0
-            stride = 2**level
-            chosen = np.arange(0, n_bins, stride)
-            lo = np.maximum(start[chosen], near)
-            hi = np.minimum(reach[chosen], far)
-            keep = hi > lo
-            if keep.any():
-                cells.append(self._cast(origin_xy, chosen[keep], lo[keep], hi[keep]))
-            level, far = level + 1, near
-        return np.concatenate(cells) if cells else np.zeros(0, np.int64)
-
-    def _cast(self, origin_xy: np.ndarray, bins: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-        """Flat cell indices sampled every cell from distance ``lo`` to ``hi`` along each bin's centre
-        line (inside the grid: its bounds hold every sensor position +- ``max_range_m``)."""
-        step = self.params.resolution_m
-        first = np.ceil(lo / step).astype(np.int64)
-        count = np.floor(hi / step).astype(np.int64) - first + 1
-        ok = count > 0
-        bins, first, count = bins[ok], first[ok], count[ok]
-        ray = np.repeat(np.arange(bins.size), count)
-        index = (np.arange(int(count.sum())) - np.repeat(np.cumsum(count) - count - first, count)).astype(np.float32)
-        angle = (bins + 0.5) * (2 * np.pi / self.params.azimuth_bins) - np.pi
-        # In cell units the sample k of a bin lies at origin + k * (cos, sin): one multiply-add per axis.
-        start = (origin_xy - self.origin_xy_m) / step
-        nx, ny = self.shape
-        i = np.clip((start[0] + np.cos(angle).astype(np.float32)[ray] * index).astype(np.int64), 0, nx - 1)
-        j = np.clip((start[1] + np.sin(angle).astype(np.float32)[ray] * index).astype(np.int64), 0, ny - 1)
-        return i * ny + j
+        height = z - ground_z
+        # Where along the beam (fraction of its length) its height above ground is in the band.
+        rise = height - sensor_height_m
+        if abs(rise) < 1e-9:
+            enter = 0.0 if inside_at_start else np.inf
+            leave = 1.0 if inside_at_start else -np.inf
+        else:
+            at_low = (band_low_m - sensor_height_m) / rise
+            at_high = (band_high_m - sensor_height_m) / rise
+            enter, leave = (at_low, at_high) if rise > 0 else (at_high, at_low)
+            enter = max(enter, 0.0)
+            leave = min(leave, 1.0)
+        end_free = length - resolution_m  # the last cell before the point is free at most
+        free_from = enter * length
+        free_to = min(leave * length, end_free)
+        b = azimuth_bin[k]
+        if free_to > free_from:
+            start[b] = min(start[b], free_from)
+            reach[b] = max(reach[b], free_to)
+        if band_low_m <= height <= band_high_m and not on_ground[k]:
+            # The nearest obstacle in the band ends the free space of its azimuth.
+            blocked[b] = min(blocked[b], end_free)
+            i = int(np.floor((x - grid_origin_xy_m[0]) / resolution_m))
+            j = int(np.floor((y - grid_origin_xy_m[1]) / resolution_m))
+            if 0 <= i < nx and 0 <= j < ny:
+                hits[n_hits] = i * ny + j
+                n_hits += 1
+    for level in range(levels.shape[0]):
+        near, far, stride = levels[level, 0], levels[level, 1], int(levels[level, 2])
+        for b in range(0, n_bins, stride):
+            lo = max(start[b], near)
+            hi = min(reach[b], far, blocked[b])
+            if not hi > lo:
+                continue
+            cos, sin = bin_direction[b, 0], bin_direction[b, 1]
+            for sample in range(int(np.ceil(lo / resolution_m)), int(np.floor(hi / resolution_m)) + 1):
+                index = np.float32(sample)
+                i = min(max(int(sensor_cell[0] + cos * index), 0), nx - 1)
+                j = min(max(int(sensor_cell[1] + sin * index), 0), ny - 1)
+                cell = i * ny + j
+                if mark[cell] != sweep:
+                    mark[cell] = sweep
+                    log_odds[cell] = max(log_odds[cell] + miss_log_odds, free_floor)
+    # Occupied wins over free; a cell hit by several points counts once (all read, then written).
+    updated = np.empty(n_hits, np.float64)
+    for h in range(n_hits):
+        cell = hits[h]
+        step = hit_after_free if mark[cell] == sweep else hit_log_odds
+        updated[h] = min(np.float64(log_odds[cell]) + step, clamp_log_odds)
+    for h in range(n_hits):
+        log_odds[hits[h]] = updated[h]
+        mark[hits[h]] = sweep
