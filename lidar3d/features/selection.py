@@ -14,11 +14,14 @@ pickable span), in ring and section order:
 * less flat: every section point that is not less sharp, voxel-downsampled per ring
   (``less_flat_voxel_m``, voxel centroids as PCL's VoxelGrid gives them).
 
-Everything but the greedy pick is array work: candidates are filtered and sorted once for the whole
-scan, the suppression span of every point is precomputed, and the sequential pick (which must stay
+The candidates are filtered once for the whole scan and sorted by section and curvature (a stable
+bucket sort by section, then each section by curvature), and the sequential pick (which must stay
 sequential: each pick changes what later candidates may do) walks only the sorted candidates of each
-section, stopping at the section's quota, in a compiled kernel (numba, cached on disk: integer work
-only, so its picks are exactly those of the same loop in Python).
+section, stopping at the section's quota, marking each pick's suppression span as it goes; the
+less-flat voxels are grouped with a small hash table per ring. All of it runs in compiled kernels
+(numba, cached on disk) whose results are those of the array and Python code they replaced
+(``tests/test_front_end_kernels.py`` keeps that code as the oracle). :func:`suppression_spans` gives
+the span of every point at once, the definition the pick follows.
 """
 
 from __future__ import annotations
