@@ -557,13 +557,15 @@ class LoopConfig:
     )
     voxel_m: float = _key(0.4, _VOXEL_M, "loop source and target downsampling")
     icp_method: str = _key(
-        "gicp", Choices(("gicp", "point_to_plane")), "Open3D ICP; GICP rotations were 10x closer on `long`"
+        "gicp", Choices(("gicp", "point_to_plane")), "small_gicp ICP; GICP rotations were 10x closer on `long`"
     )
     icp_max_correspondence_m: tuple[float, ...] = _key(
         (4.0, 2.0, 1.0, 0.5), ListRange(_positive(100.0, "m"), 1, 20), "coarse-to-fine stage distances"
     )
     icp_max_iterations: int = _key(30, _closed(1, 10000), "ICP iterations per stage")
-    normal_radius_m: float = _key(1.2, _positive(50.0, "m"), "target normal radius for point-to-plane")
+    icp_neighbours: int = _key(
+        20, _closed(5, 1000), "nearest neighbours behind each GICP covariance and point-to-plane target normal"
+    )
     min_source_points: int = _key(300, _closed(1, 100_000_000), "fewer query points: no check (LIO-SAM)")
     min_target_points: int = _key(1000, _closed(1, 100_000_000), "fewer target points: no check (LIO-SAM)")
     min_fitness: float = _key(0.7, _FRACTION, "share of query points with a target point within the final distance")

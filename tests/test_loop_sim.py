@@ -9,19 +9,23 @@ from __future__ import annotations
 import dataclasses
 import functools
 import itertools
+import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
+from scipy.spatial import cKDTree
 
 from lidar3d.config import LoopConfig
 from lidar3d.errors import ConfigError
 from lidar3d.loop import LoopCloser, Verdict, build_match_cloud, correct_scan_poses, verify_loop
-from lidar3d.loop.verification import loop_information, point_information, voxel_overlap
+from lidar3d.loop.verification import correspondences, loop_information, point_information, voxel_overlap
 from lidar3d.mapping.deskew import deskew_scan, twist_between
 from lidar3d.mapping.keyframes import Keyframe
 from lidar3d.mapping.se3 import exp_se3, invert
 from lidar3d.mapping.voxel import voxel_downsample
-from lidar3d.sim import Simulation
+from lidar3d.sim import Simulation, simulate
 
 CONFIG = LoopConfig()
 KEYFRAME_STRIDE = 2  # a keyframe every 2 sweeps (~1.3 m at 6.5 m/s)
@@ -85,6 +89,59 @@ def test_verification_recovers_a_known_offset(method):
     covariance = np.linalg.inv(result.information)
     assert np.all(np.sqrt(np.diag(covariance)[3:]) >= CONFIG.min_sigma_translation_m * 0.999)
     assert np.all(np.sqrt(np.diag(covariance)[:3]) >= np.radians(CONFIG.min_sigma_rotation_deg) * 0.999)
+
+
+@pytest.mark.parametrize("method", ["point_to_plane", "gicp"])
+def test_verification_recovers_the_offset_between_two_keyframes(method):
+    """Single keyframe clouds 4 sweeps (~5 m) apart, true relative pose from the ground truth, guess
+    off by 0.6 m / 2°: ICP lands within 5 mm / 0.1° of the truth (measured: GICP 1.5 mm / 0.03°,
+    the same as Open3D's; point-to-plane 2.6 mm / 0.07°, Open3D's with 1.2 m radius normals 51 mm /
+    0.23°: one 16-ring sweep pins roll and pitch poorly)."""
+    config = dataclasses.replace(CONFIG, icp_method=method)
+    gt = _sim().ground_truth.T_world_lidar
+    query_scan, match_scan = 18, 14
+    target = voxel_downsample(_cloud(match_scan), CONFIG.voxel_m)
+    T_true = invert(gt[match_scan]) @ gt[query_scan]
+    offset = exp_se3(np.array([0.5, 0.3, 0.1, 0.0, 0.0, np.radians(2.0)]))
+    result = verify_loop(_cloud(query_scan), target, T_true @ offset, config)
+    assert result.verdict is Verdict.ACCEPTED, result.reason
+    error = invert(T_true) @ result.T_match_query
+    assert np.linalg.norm(error[:3, 3]) < 0.005
+    assert _angle_deg(error[:3, :3]) < 0.1
+    assert result.correction_m == pytest.approx(np.linalg.norm(offset[:3, 3]), abs=0.01)
+
+
+def test_correspondences_follow_open3d_definitions_against_ckdtree():
+    rng = np.random.default_rng(7)
+    target = rng.uniform(-10, 10, (2000, 3))
+    source = target[:500] + rng.normal(0, 0.3, (500, 3))
+    paired, rmse = correspondences(source, target, 0.5)
+    distance, _ = cKDTree(target).query(source)
+    expected = np.flatnonzero(distance < 0.5)
+    np.testing.assert_array_equal(paired, expected)
+    assert rmse == pytest.approx(np.sqrt(np.mean(distance[expected] ** 2)), rel=1e-12)
+    none, zero = correspondences(source + 100.0, target, 0.5)
+    assert none.size == 0 and zero == 0.0
+
+
+def test_a_run_with_loop_closure_does_not_import_open3d(tmp_path):
+    """Verification runs in ``lidar3d run`` without Open3D (~170 MiB of RSS): a short drive whose
+    later keyframes are candidates for its first ones, run in a fresh process."""
+    bag = simulate("loop", tmp_path / "sim", seed=0, duration_s=8.0).bag
+    out = tmp_path / "run"
+    child = f"""
+import json, sys
+from lidar3d.config import Config, config_with
+from lidar3d.run import run_bag
+config = config_with(Config(), {{"loop": {{"min_time_gap_s": 2.0, "search_radius_m": 40.0}}}})
+run_bag({str(bag)!r}, {str(out)!r}, config, prefetch=False)
+print(json.dumps({{"open3d": "open3d" in sys.modules, "small_gicp": "small_gicp" in sys.modules}}))
+"""
+    done = subprocess.run([sys.executable, "-c", child], capture_output=True, text=True, check=True)
+    imported = json.loads(done.stdout.strip().splitlines()[-1])
+    rows = (out / "loops.csv").read_text().splitlines()[1:]
+    assert rows, "no loop candidate was verified"
+    assert imported == {"open3d": False, "small_gicp": True}
 
 
 def test_verification_rejects_a_different_street_with_a_reason():

@@ -1,7 +1,7 @@
 """Geometric verification of a loop candidate: ICP of the query keyframe against a submap.
 
-This is the only module of :mod:`lidar3d.loop` that touches Open3D; clouds and transforms cross
-its boundary as NumPy arrays.
+This is the only module of :mod:`lidar3d.loop` that touches small_gicp (koide3/small_gicp, MIT);
+clouds and transforms cross its boundary as NumPy arrays.
 
 Procedure (LeGO-LOAM ``performLoopClosure``, LIO-SAM ``performLoopClosure``, with the checks that
 their users asked for, see ``shared/reference/lego-loam-and-peers.md`` §3 row 5):
@@ -9,12 +9,19 @@ their users asked for, see ``shared/reference/lego-loam-and-peers.md`` §3 row 5
 1. **Target**: the match keyframe and its ``±submap_neighbours`` neighbours (LeGO-LOAM and LIO-SAM
    fuse ±25) are put into the match keyframe's frame with the current pose estimates, fused and
    voxel-downsampled (LeGO-LOAM: 0.4 m). **Source**: the query keyframe's cloud, downsampled alike.
-2. **Registration**: Open3D ICP, point-to-plane (target normals from a radius search) or
-   generalized ICP, started from the current estimate ``T_match_query = inv(T_world_match) @
+2. **Registration**: small_gicp's generalized ICP or point-to-plane ICP (Levenberg-Marquardt,
+   one thread), started from the current estimate ``T_match_query = inv(T_world_match) @
    T_world_query`` and run through a coarse-to-fine schedule of maximum correspondence distances
    (default 4, 2, 1, 0.5 m) so that 1-2 m of drift still falls inside the first basin.
-   Convergence is checked by running the last stage once more: if that moves the result by more
-   than 2 cm or 0.1°, ICP is declared not converged.
+   Each point's local shape comes from its ``icp_neighbours`` nearest neighbours (small_gicp
+   searches k-nearest only and takes no normals from outside): for GICP the plane-like covariance
+   ``V diag(1e-3, 1, 1) Vᵀ`` of both clouds (``V`` the eigenvectors of the neighbourhood's
+   scatter, smallest first; Open3D's GICP builds the same from its normals), for point-to-plane
+   the target normals. Convergence is checked by running the last stage once more: if that moves
+   the result by more than 2 cm or 0.1°, ICP is declared not converged.
+   Fitness, inlier RMSE and the correspondences are then computed here, as Open3D defines them
+   (:func:`correspondences`), with lidar3d's own k-d tree, so the gates below do not depend on
+   the ICP library.
 3. **Acceptance**: enough points in both clouds (LIO-SAM: 300 source, 1000 target), fitness
    (fraction of source points with a correspondence at the final distance) at or above the
    threshold, inlier RMSE at or below it, voxel overlap ``|A ∩ B| / min(|A|, |B|)`` of the aligned
@@ -43,12 +50,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.loop.records import Verdict
+from lidar3d.mapping.nearest import PointTree
 from lidar3d.mapping.se3 import invert, nearest_rigid, transform_points
 from lidar3d.mapping.voxel import voxel_downsample, voxel_keys
 
 __all__ = [
     "LoopVerification",
     "build_match_cloud",
+    "correspondences",
     "loop_information",
     "point_information",
     "pose_change",
@@ -59,6 +68,12 @@ __all__ = [
 _RMSE_FLOOR_M = 0.01  # σ never below 1 cm when the inlier RMSE scales the information
 _CONVERGED_M = 0.02  # last-stage re-run may move the result at most this much ...
 _CONVERGED_DEG = 0.1  # ... and this much rotation
+# A stage ends when a step moves the estimate less than both (small_gicp's defaults are 1 mm and
+# 0.1°; a step of 0.1° would already be as large as the re-run may move the result).
+_EPSILON_M = 1e-4
+_EPSILON_RAD = 1e-5
+# lidar3d's names of the ICP variants -> small_gicp's registration_type.
+_REGISTRATION_TYPES = {"gicp": "GICP", "point_to_plane": "PLANE_ICP"}
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,7 +84,8 @@ class LoopVerification:
         verdict: outcome (``Verdict.ACCEPTED`` or why not).
         reason: one line with the numbers behind the verdict.
         T_match_query: (4,4) ICP result (the initial guess when ICP did not run).
-        fitness: Open3D fitness at the final correspondence distance (NaN if ICP did not run).
+        fitness: share of the source points with a target point within the final correspondence
+            distance, at ``T_match_query`` (NaN if ICP did not run).
         inlier_rmse_m: inlier RMSE at the final distance (NaN if ICP did not run).
         overlap: voxel overlap of the aligned clouds (NaN if ICP did not run).
         correction_m: ‖translation‖ of ``inv(T_guess) @ T_match_query``.
@@ -173,6 +189,29 @@ def loop_information(
     return 0.5 * (information + information.T)
 
 
+def correspondences(aligned_source: np.ndarray, target: np.ndarray, max_distance_m: float) -> tuple[np.ndarray, float]:
+    """The source points with a target point closer than ``max_distance_m``, and their RMSE.
+
+    Open3D's definitions (``GetRegistrationResultAndCorrespondences``): each source point is paired
+    with its nearest target point if that lies within the distance; fitness is the paired share of
+    the source points, inlier RMSE the root mean square of the paired distances (0 when none).
+
+    Args:
+        aligned_source: (N,3) source points already moved into the target's frame.
+        target: (M,3) target points, M >= 1.
+        max_distance_m: the correspondence distance (m).
+
+    Returns:
+        ``(indices, inlier_rmse_m)``: (K,) int64 rows of ``aligned_source`` that are paired, and the
+        RMSE (m) of their distances.
+    """
+    distance_m, _ = PointTree(target).query(aligned_source, distance_upper_bound=max_distance_m)
+    paired = np.flatnonzero(np.isfinite(distance_m))
+    if paired.size == 0:
+        return paired, 0.0
+    return paired, float(np.sqrt(np.mean(distance_m[paired] ** 2)))
+
+
 def voxel_overlap(points_a: np.ndarray, points_b: np.ndarray, voxel_m: float) -> float:
     """``|A ∩ B| / min(|A|, |B|)`` over occupied voxels (KISS-SLAM ``loop_closer.py``); 0 if empty."""
     if len(points_a) == 0 or len(points_b) == 0:
@@ -238,9 +277,8 @@ def verify_loop(
     Returns:
         The verification record; never raises on bad geometry (a rejection says why).
     """
-    import open3d as o3d
+    import small_gicp
 
-    registration = o3d.pipelines.registration
     T_guess = np.asarray(T_guess_match_query, dtype=np.float64)
     if T_guess.shape != (4, 4):
         raise ValueError(f"T_guess_match_query must be (4,4), got {T_guess.shape}")
@@ -260,39 +298,38 @@ def verify_loop(
         return _rejected(Verdict.NOT_CONVERGED, "non-finite points or initial guess", T_guess, n_source, n_target)
     T_guess = nearest_rigid(T_guess)
 
-    source_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(source))
-    target_cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(target))
     method = config.icp_method
-    if method == "point_to_plane":
-        target_cloud.estimate_normals(o3d.geometry.KDTreeSearchParamHybrid(radius=config.normal_radius_m, max_nn=20))
-        point_to_plane = registration.TransformationEstimationPointToPlane()
-
-        def run(distance: float, T: np.ndarray, iterations: int):
-            criteria = registration.ICPConvergenceCriteria(1e-7, 1e-7, iterations)
-            return registration.registration_icp(source_cloud, target_cloud, distance, T, point_to_plane, criteria)
-
-    elif method == "gicp":
-        # Open3D's GICP turns normals into plane-like covariances R diag(eps, 1, 1) Rᵀ, estimating
-        # the normals itself (20 nearest neighbours, Segal et al.) on every call when a cloud has
-        # none. Estimated once here with the same search, the five calls below repeat no search.
-        for cloud in (source_cloud, target_cloud):
-            cloud.estimate_normals(o3d.geometry.KDTreeSearchParamKNN(20))
-        generalized = registration.TransformationEstimationForGeneralizedICP()
-
-        def run(distance: float, T: np.ndarray, iterations: int):
-            criteria = registration.ICPConvergenceCriteria(1e-7, 1e-7, iterations)
-            return registration.registration_generalized_icp(
-                source_cloud, target_cloud, distance, T, generalized, criteria
-            )
-
+    if method not in _REGISTRATION_TYPES:
+        raise ValueError(f"unknown icp_method {method!r} (known: {', '.join(_REGISTRATION_TYPES)})")
+    source_cloud = small_gicp.PointCloud(source)
+    target_cloud = small_gicp.PointCloud(target)
+    target_tree = small_gicp.KdTree(target_cloud)
+    # Local shape from the k nearest neighbours (small_gicp has no radius search and no way to hand
+    # it normals): GICP's plane-like covariances V diag(1e-3, 1, 1) Vᵀ on both clouds, as Open3D's
+    # GICP builds them from its normals; point-to-plane's target normals.
+    if method == "gicp":
+        small_gicp.estimate_covariances(target_cloud, target_tree, num_neighbors=config.icp_neighbours)
+        small_gicp.estimate_covariances(source_cloud, num_neighbors=config.icp_neighbours)
     else:
-        raise ValueError(f"unknown icp_method {method!r} (known: point_to_plane, gicp)")
+        small_gicp.estimate_normals(target_cloud, target_tree, num_neighbors=config.icp_neighbours)
+
+    def run(distance: float, T: np.ndarray):
+        return small_gicp.align(
+            target_cloud,
+            source_cloud,
+            target_tree,
+            init_T_target_source=T,
+            registration_type=_REGISTRATION_TYPES[method],
+            max_correspondence_distance=distance,
+            max_iterations=config.icp_max_iterations,
+            rotation_epsilon=_EPSILON_RAD,
+            translation_epsilon=_EPSILON_M,
+        )
 
     T = T_guess.copy()
-    result = None
     for distance in config.icp_max_correspondence_m:
-        result = run(float(distance), T, config.icp_max_iterations)
-        if len(result.correspondence_set) < 3 or not np.isfinite(result.transformation).all():
+        result = run(float(distance), T)
+        if result.num_inliers < 3 or not np.isfinite(result.T_target_source).all():
             return _rejected(
                 Verdict.NOT_CONVERGED,
                 f"ICP lost its correspondences at {distance:g} m",
@@ -300,15 +337,14 @@ def verify_loop(
                 n_source,
                 n_target,
             )
-        T = nearest_rigid(np.array(result.transformation))
+        T = nearest_rigid(np.array(result.T_target_source))
     final_distance = float(config.icp_max_correspondence_m[-1])
-    assert result is not None  # the schedule is not empty (indexed just above)
-    check = run(final_distance, T, config.icp_max_iterations)
-    moved_m, moved_deg = pose_change(T, np.array(check.transformation))
+    check = run(final_distance, T)
+    moved_m, moved_deg = pose_change(T, np.array(check.T_target_source))
     correction_m, correction_deg = pose_change(T_guess, T)
-    fitness = float(result.fitness)
-    rmse = float(result.inlier_rmse)
     aligned = transform_points(T, source)
+    matched_source, rmse = correspondences(aligned, target, final_distance)
+    fitness = matched_source.size / n_source
     overlap = voxel_overlap(aligned, target, config.overlap_voxel_m)
     metrics = {
         "fitness": fitness,
@@ -344,7 +380,7 @@ def verify_loop(
             n_target,
             **metrics,
         )
-    matched = source[np.asarray(result.correspondence_set)[:, 0]]
+    matched = source[matched_source]
     information = loop_information(
         matched,
         rmse,
