@@ -792,6 +792,13 @@ def _coerce(value: Any, annotation: Any, path: str) -> Any:
     raise TypeError(f"unsupported config annotation {annotation!r} at {path}")
 
 
+_RETIRED_KEYS = {
+    "loop.normal_radius_m": "loop.icp_neighbours (the loop ICP's normals and covariances are fitted to "
+    "that many nearest neighbours since it runs on small_gicp, docs/stages/loop-closure.md)",
+}
+"""Keys of earlier releases that a config file may still hold: what replaced each."""
+
+
 def _build(cls: type, data: dict[str, Any], path: str) -> Any:
     if not isinstance(data, dict):
         raise ConfigError(f"config {path}: expected a table, got {type(data).__name__}")
@@ -800,6 +807,8 @@ def _build(cls: type, data: dict[str, Any], path: str) -> Any:
     for key in data:
         if key not in names:
             where = f"{path}.{key}" if path else key
+            if where in _RETIRED_KEYS:
+                raise ConfigError(f"config: key {where!r} is gone; it is replaced by {_RETIRED_KEYS[where]}")
             raise ConfigError(f"config: unknown key {where!r} (known: {', '.join(sorted(names))})")
     kwargs = {}
     for f in dataclasses.fields(cls):

@@ -42,6 +42,15 @@ def test_unknown_key_names_dotted_path(tmp_path):
         load_config(path)
 
 
+def test_a_retired_key_names_its_replacement(tmp_path):
+    path = tmp_path / "c.toml"
+    path.write_text("[loop]\nnormal_radius_m = 1.2\n")
+    with pytest.raises(
+        ConfigError, match=r"key 'loop\.normal_radius_m' is gone; it is replaced by loop\.icp_neighbours"
+    ):
+        load_config(path)
+
+
 def test_unknown_section(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text("[segmentaton]\n")
