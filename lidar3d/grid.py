@@ -104,7 +104,8 @@ def grid_run(
 
     Raises:
         ConfigError: a resolution <= 0, an empty or inverted band.
-        OutputError: ``run_dir`` is not a consistent run folder, or its map is empty.
+        OutputError: ``run_dir`` is not a consistent run folder, has no poses, or gives no ground
+            (no scan has ground cells and there is no map, or an empty one).
         BagError: the run's input bag cannot be read.
     """
     params = check_grid_options(resolution_m, band_m)
@@ -117,9 +118,8 @@ def grid_run(
         log.warning("%s: a partial run (stopped after %d scans): gridding the scans it has", run, summary.scans)
     config = load_config(run / "config.toml")
     trajectory = read_tum(run / "trajectory_tum.txt")
-    map_points, _ = read_pcd_fields(run / "map.pcd")
-    if not len(map_points) or not len(trajectory):
-        raise OutputError(f"{run}: the run has no map points or no poses: nothing to grid")
+    if not len(trajectory):
+        raise OutputError(f"{run}: the run has no poses: nothing to grid")
     dynamic_keys = np.zeros(0, np.int64)
     if summary.output("dynamic.pcd") is not None:
         dynamic_points, _ = read_pcd_fields(run / "dynamic.pcd")
@@ -127,8 +127,7 @@ def grid_run(
     inputs = [_input_path(run, p) for p in summary.inputs]
     ground, placed_scans = _ground_of_scans(inputs, config, trajectory, dynamic_keys)
     if ground is None:  # no scan marked ground cells (e.g. segmentation failed on every scan)
-        log.warning("%s: no ground cells in the scans: the local ground is taken from map.pcd", run)
-        ground = GroundModel.from_points(lowest_per_cell(map_points, GROUND_CELL_M), GROUND_CELL_M)
+        ground = _ground_of_map(run, summary.output("map.pcd") is not None)
     positions = trajectory.positions_m
     reach = params.max_range_m
     bounds = np.array([positions[:, :2].min(axis=0) - reach, positions[:, :2].max(axis=0) + reach])
@@ -224,6 +223,19 @@ def _ground_of_scans(
     if not len(every):
         return None, scans
     return GroundModel.from_points(every, GROUND_CELL_M), scans
+
+
+def _ground_of_map(run: Path, has_map: bool) -> GroundModel:
+    """The local ground from the lowest points of the run's ``map.pcd`` (when no scan has ground
+    cells); :class:`OutputError` when the set has no map (a run stopped before its first map
+    checkpoint) or the map is empty."""
+    if not has_map:
+        raise OutputError(f"{run}: no scan has ground cells and the run has no map.pcd yet: no ground to grid on")
+    log.warning("%s: no ground cells in the scans: the local ground is taken from map.pcd", run)
+    map_points, _ = read_pcd_fields(run / "map.pcd")
+    if not len(map_points):
+        raise OutputError(f"{run}: no scan has ground cells and map.pcd is empty: no ground to grid on")
+    return GroundModel.from_points(lowest_per_cell(map_points, GROUND_CELL_M), GROUND_CELL_M)
 
 
 def _input_path(run: Path, recorded: str) -> Path:

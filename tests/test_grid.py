@@ -208,6 +208,26 @@ def test_a_partial_run_is_gridded_as_far_as_it_goes(loop_run, tmp_path, capsys):
     assert "partial" in capsys.readouterr().out
 
 
+def test_a_partial_run_without_a_map_yet_is_gridded_from_its_scans(loop_run, tmp_path, capsys):
+    """A run stopped (SIGTERM, power) before its first map checkpoint published poses but no
+    map.pcd: the grid needs only the poses and the scans."""
+    import shutil
+
+    from lidar3d.io.run_folder import publish_set
+    from lidar3d.summary import read_summary
+
+    _, run = loop_run
+    folder = tmp_path / "no_map"
+    shutil.copytree(run, folder)
+    summary = read_summary(folder / "summary.json")
+    keep = [entry.path for entry in summary.outputs if entry.path not in ("map.pcd", "dynamic.pcd")]
+    publish_set(folder, dataclasses.replace(summary, partial=True), keep=keep)
+    assert not (folder / "map.pcd").exists()
+    assert main(["-q", "grid", str(folder), "--out", str(tmp_path / "g")]) == 0
+    assert "partial" in capsys.readouterr().out
+    assert (tmp_path / "g" / "map.pgm").exists()
+
+
 @pytest.mark.parametrize(
     "options, message",
     [
