@@ -7,7 +7,7 @@ import functools
 import numpy as np
 from scipy.spatial import cKDTree
 
-from lidar3d.segmentation import RangeImage
+from lidar3d.segmentation import RangeImage, Segmentation
 from lidar3d.sim import ObjectClass, SimulatedScan, Simulation
 
 DURATION_S = 60.0
@@ -59,3 +59,47 @@ def vertical_edge_tree(scenario: str, sensor: str = "vlp16") -> cKDTree:
 
 
 SLENDER = (int(ObjectClass.POLE), int(ObjectClass.TREE))
+
+
+# The array definitions the front end's compiled kernels follow (oracles for the tests).
+
+
+def joins_by_beta(near_m: np.ndarray, far_m: np.ndarray, alpha_rad: np.ndarray | float, tan_theta: float) -> np.ndarray:
+    """beta > theta for 0 < theta < 90 deg, written without the arctangent.
+
+    With s = d2 sin(alpha) > 0, beta = atan2(s, d1 - d2 cos(alpha)) exceeds theta exactly when
+    s > tan(theta) * (d1 - d2 cos(alpha)) (a non-positive denominator means beta >= 90 deg).
+    NaN ranges (empty cells) compare False.
+    """
+    with np.errstate(invalid="ignore"):
+        return near_m * np.sin(alpha_rad) > tan_theta * (far_m - near_m * np.cos(alpha_rad))
+
+
+def suppression_spans(
+    segmentation: Segmentation, half_window: int, max_column_gap: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) int64 ``lo`` and ``hi``: picking point i marks ``[lo[i], hi[i])`` as picked.
+
+    The span reaches up to ``half_window`` points either side of i, stopping before the first pair
+    of consecutive points more than ``max_column_gap`` columns apart or in different rings (FA:720-735).
+    """
+    n = len(segmentation)
+    link = np.zeros(n, dtype=bool)  # link[k]: points k and k+1 are close neighbours
+    link[:-1] = (segmentation.row[1:] == segmentation.row[:-1]) & (
+        np.abs(np.diff(segmentation.column)) <= max_column_gap
+    )
+    forward = np.zeros(n, dtype=np.int64)
+    backward = np.zeros(n, dtype=np.int64)
+    reach_forward = np.ones(n, dtype=bool)
+    reach_backward = np.ones(n, dtype=bool)
+    for step in range(half_window):
+        ahead = np.zeros(n, dtype=bool)
+        ahead[: n - step] = link[step:]  # link between i+step and i+step+1
+        reach_forward &= ahead
+        forward += reach_forward
+        behind = np.zeros(n, dtype=bool)
+        behind[step + 1 :] = link[: n - step - 1]  # link between i-step-1 and i-step
+        reach_backward &= behind
+        backward += reach_backward
+    index = np.arange(n)
+    return index - backward, index + forward + 1

@@ -14,6 +14,7 @@ from frontend_sim import (
     sample_scans,
     scan_index_of,
     simulation,
+    suppression_spans,
     vertical_edge_tree,
 )
 
@@ -24,7 +25,6 @@ from lidar3d.features import (
     extract_features,
     run_front_end,
     select_features,
-    suppression_spans,
     voxel_centroids_per_ring,
 )
 from lidar3d.features.smoothness import noise_edge_threshold

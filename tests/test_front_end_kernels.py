@@ -10,15 +10,15 @@ greedy feature pick as a Python loop over the candidates sorted by ``np.lexsort`
 
 import numpy as np
 import pytest
+from frontend_sim import joins_by_beta, suppression_spans
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from lidar3d.config import Config
 from lidar3d.features import run_front_end
-from lidar3d.features.selection import suppression_spans, voxel_centroids_per_ring
+from lidar3d.features.selection import voxel_centroids_per_ring
 from lidar3d.features.smoothness import compute_smoothness
 from lidar3d.segmentation import cluster_cells, ground, mark_ground, project_scan
-from lidar3d.segmentation.clustering import joins_by_beta
 from lidar3d.sensors import SensorModel
 from lidar3d.sim import Simulation
 

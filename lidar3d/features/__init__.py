@@ -14,7 +14,7 @@ from lidar3d.features.frontend import (
     run_front_end,
 )
 from lidar3d.features.records import FeatureCloud, FeatureSet, Smoothness
-from lidar3d.features.selection import select_features, suppression_spans, voxel_centroids_per_ring
+from lidar3d.features.selection import select_features, voxel_centroids_per_ring
 from lidar3d.features.smoothness import compute_smoothness
 
 __all__ = [
@@ -29,6 +29,5 @@ __all__ = [
     "prepare_scan",
     "run_front_end",
     "select_features",
-    "suppression_spans",
     "voxel_centroids_per_ring",
 ]

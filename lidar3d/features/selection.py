@@ -20,8 +20,9 @@ sequential: each pick changes what later candidates may do) walks only the sorte
 section, stopping at the section's quota, marking each pick's suppression span as it goes; the
 less-flat voxels are grouped with a small hash table per ring. All of it runs in compiled kernels
 (numba, cached on disk) whose results are those of the array and Python code they replaced
-(``tests/test_front_end_kernels.py`` keeps that code as the oracle). :func:`suppression_spans` gives
-the span of every point at once, the definition the pick follows.
+(``tests/test_front_end_kernels.py`` keeps that code as the oracle). A pick's span reaches up to
+``curvature_half_window`` points either side, stopping before the first pair of consecutive points
+more than ``neighbour_max_column_gap`` columns apart or in different rings (FA:720-735).
 """
 
 from __future__ import annotations
@@ -33,37 +34,7 @@ from lidar3d.features.records import FeatureCloud, FeatureSet, Smoothness
 from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.segment import Segmentation
 
-__all__ = ["select_features", "suppression_spans", "voxel_centroids_per_ring"]
-
-
-def suppression_spans(
-    segmentation: Segmentation, half_window: int, max_column_gap: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """(M,) int64 ``lo`` and ``hi``: picking point i marks ``[lo[i], hi[i])`` as picked.
-
-    The span reaches up to ``half_window`` points either side of i, stopping before the first pair
-    of consecutive points more than ``max_column_gap`` columns apart or in different rings (FA:720-735).
-    """
-    n = len(segmentation)
-    link = np.zeros(n, dtype=bool)  # link[k]: points k and k+1 are close neighbours
-    link[:-1] = (segmentation.row[1:] == segmentation.row[:-1]) & (
-        np.abs(np.diff(segmentation.column)) <= max_column_gap
-    )
-    forward = np.zeros(n, dtype=np.int64)
-    backward = np.zeros(n, dtype=np.int64)
-    reach_forward = np.ones(n, dtype=bool)
-    reach_backward = np.ones(n, dtype=bool)
-    for step in range(half_window):
-        ahead = np.zeros(n, dtype=bool)
-        ahead[: n - step] = link[step:]  # link between i+step and i+step+1
-        reach_forward &= ahead
-        forward += reach_forward
-        behind = np.zeros(n, dtype=bool)
-        behind[step + 1 :] = link[: n - step - 1]  # link between i-step-1 and i-step
-        reach_backward &= behind
-        backward += reach_backward
-    index = np.arange(n)
-    return index - backward, index + forward + 1
+__all__ = ["select_features", "voxel_centroids_per_ring"]
 
 
 def voxel_centroids_per_ring(
@@ -183,8 +154,8 @@ def _by_section(candidate, section, key, n_sections):
 
 @lazy_njit
 def _pick(row, column, edges, edge_bounds, flats, flat_bounds, quota, half_window, max_column_gap):
-    """The greedy pick, section by section: edges first, then flats; each pick marks as picked the
-    span that :func:`suppression_spans` gives it, walked from the pick. ``quota``: (sharp, less
+    """The greedy pick, section by section: edges first, then flats; each pick marks as picked its
+    suppression span (module doc), walked from the pick. ``quota``: (sharp, less
     sharp, flat) per section. Returns the indices of the sharp, less-sharp and flat picks, in pick
     order."""
     n_points = row.shape[0]

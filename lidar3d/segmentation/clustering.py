@@ -9,12 +9,12 @@ angle beta between the beam to the farther point and the line joining the two po
 with alpha the angle between the two beams: the column width for horizontal neighbours, the
 difference of the two rows' beam elevations for vertical ones (LeGO-LOAM uses the uniform 2 degree
 spacing; the table handles non-uniform sensors such as the VLP-32C). LeGO-LOAM grows each cluster by
-breadth-first search; here the joining test runs on the whole image at once and the clusters are the
-connected components of the resulting graph, found by union-find in a compiled kernel (numba, cached
-on disk) that also makes the joining test, pair by pair, with the arithmetic of
-:func:`joins_by_beta`. A cluster is kept when it has
-at least ``min_cluster_points`` points, or at least ``min_cluster_points_multi_ring`` points on at
-least ``min_cluster_rings`` rows (IP:430-450); the others are outliers.
+breadth-first search; here every pair of neighbour cells is tested and the clusters are the
+connected components of the joined pairs, found by union-find in a compiled kernel (numba, cached on
+disk). The test needs no arctangent: with s = d2 sin(alpha) > 0, beta exceeds theta (0 < theta <
+90 deg) exactly when s > tan(theta) (d1 - d2 cos(alpha)). A cluster is kept when it has at least
+``min_cluster_points`` points, or at least ``min_cluster_points_multi_ring`` points on at least
+``min_cluster_rings`` rows (IP:430-450); the others are outliers.
 """
 
 from __future__ import annotations
@@ -26,18 +26,7 @@ from lidar3d.errors import ConfigError
 from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.range_image import RangeImage
 
-__all__ = ["cluster_cells", "joins_by_beta"]
-
-
-def joins_by_beta(near_m: np.ndarray, far_m: np.ndarray, alpha_rad: np.ndarray | float, tan_theta: float) -> np.ndarray:
-    """beta > theta for 0 < theta < 90 deg, written without the arctangent.
-
-    With s = d2 sin(alpha) > 0, beta = atan2(s, d1 - d2 cos(alpha)) exceeds theta exactly when
-    s > tan(theta) * (d1 - d2 cos(alpha)) (a non-positive denominator means beta >= 90 deg).
-    NaN ranges (empty cells) compare False.
-    """
-    with np.errstate(invalid="ignore"):
-        return near_m * np.sin(alpha_rad) > tan_theta * (far_m - near_m * np.cos(alpha_rad))
+__all__ = ["cluster_cells"]
 
 
 @lazy_njit
@@ -77,7 +66,7 @@ def _cluster_kernel(
                     continue
                 if not candidate[other_r, other_c]:
                     continue
-                # joins_by_beta, with the same arithmetic
+                # beta > theta, without the arctangent (module doc)
                 near = min(range_m[r, c], range_m[other_r, other_c])
                 far = max(range_m[r, c], range_m[other_r, other_c])
                 if not near * sin_alpha > tan_theta * (far - near * cos_alpha):

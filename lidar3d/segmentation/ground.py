@@ -340,7 +340,7 @@ def _release_contacts(image: RangeImage, ground: np.ndarray, supported: np.ndarr
     if rows_with_ground.size == 0:
         return
     alpha = np.abs(np.diff(image.row_elevation_rad))  # (R-1,) elevation step to the row above
-    # each row's sine and cosine as joins_by_beta takes them (a NumPy scalar each: the same bits)
+    # each row's sine and cosine, as NumPy scalars (the bits the array version of the test used)
     sin_cos = np.array([(np.sin(a), np.cos(a)) for a in alpha]).reshape(-1, 2)
     top = min(int(rows_with_ground[-1]), ground.shape[0] - 2)
     _release_kernel(ground, supported, image.range_m, sin_cos, float(np.tan(np.deg2rad(config.cluster_angle_deg))), top)
@@ -359,5 +359,7 @@ def _release_kernel(
                 continue  # released only: unsupported ground below an object cell
             near = min(range_m[i, c], range_m[i + 1, c])
             far = max(range_m[i, c], range_m[i + 1, c])
-            if near * sin_cos[i, 0] > tan_theta * (far - near * sin_cos[i, 1]):  # joins_by_beta
+            if near * sin_cos[i, 0] > tan_theta * (
+                far - near * sin_cos[i, 1]
+            ):  # beta > theta (clustering's module doc)
                 ground[i, c] = False
