@@ -367,7 +367,6 @@ class MappingConfig:
         2, _ITERATIONS, "correspondences recomputed every n iterations (LeGO-LOAM: 1; 2 costs 25 % less)"
     )
     min_rows: int = _key(50, _closed(6, 1_000_000), "fewer residual rows: registration fails; keyframe surface minimum")
-    degeneracy_threshold: float = _key(100.0, _closed(0.0, 1e9), "Hessian eigenvalues below this are degenerate")
     converge_rotation_deg: float = _key(0.05, _closed(0.0, 10.0, "deg"), "converged below this rotation step ...")
     converge_translation_m: float = _key(0.0005, _closed(0.0, 1.0, "m"), "... and this translation step")
     # Submap planes: LeGO-LOAM fits 5 neighbours within 1 m; on a 16-beam scan those lie on one
@@ -621,7 +620,8 @@ class MotionConfig:
     body axis and a rotation sigma of ``angular_accel * dt^2`` about each. Sideways and vertical
     apply once the motion has shown it is a vehicle's (driving along one body axis); until then
     every translation axis takes the forward value. Where the recent prediction errors of
-    well-constrained scans (root mean square per axis) are larger, they are used instead.
+    well-constrained scans are larger, and persist from one scan to the next (the root of the
+    running mean of consecutive errors' products, per axis), they are used instead.
     """
 
     forward_accel_mps2: float = _key(2.0, _positive(100.0, "m/s^2"), "speed change along the direction of travel")
@@ -634,7 +634,7 @@ class MotionConfig:
     cold_start_sigma_m: float = _key(1.0, _positive(1000.0, "m"), "before the model is established: guess sigma ...")
     cold_start_sigma_deg: float = _key(5.0, _positive(180.0, "deg"), "... and rotation sigma beside the odometry yaw")
     innovation_smoothing: float = _key(
-        0.2, _FRACTION, "weight of the newest prediction error in the running mean that widens the prior"
+        0.2, _FRACTION, "weight of the newest product of consecutive prediction errors in the prior's widening"
     )
 
 
@@ -795,6 +795,8 @@ def _coerce(value: Any, annotation: Any, path: str) -> Any:
 _RETIRED_KEYS = {
     "loop.normal_radius_m": "loop.icp_neighbours (the loop ICP's normals and covariances are fitted to "
     "that many nearest neighbours since it runs on small_gicp, docs/stages/loop-closure.md)",
+    "mapping.degeneracy_threshold": "the [motion] section's uncertainties (a scan-to-submap direction is "
+    "degenerate where the rows know it less well than the vehicle model does, docs/stages/odometry-mapping.md)",
 }
 """Keys of earlier releases that a config file may still hold: what replaced each."""
 

@@ -42,12 +42,20 @@ def test_unknown_key_names_dotted_path(tmp_path):
         load_config(path)
 
 
-def test_a_retired_key_names_its_replacement(tmp_path):
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            "[loop]\nnormal_radius_m = 1.2\n",
+            r"key 'loop\.normal_radius_m' is gone; it is replaced by loop\.icp_neighbours",
+        ),
+        ("[mapping]\ndegeneracy_threshold = 30\n", r"key 'mapping\.degeneracy_threshold' is gone; .*\[motion\]"),
+    ],
+)
+def test_a_retired_key_names_its_replacement(tmp_path, text, message):
     path = tmp_path / "c.toml"
-    path.write_text("[loop]\nnormal_radius_m = 1.2\n")
-    with pytest.raises(
-        ConfigError, match=r"key 'loop\.normal_radius_m' is gone; it is replaced by loop\.icp_neighbours"
-    ):
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=message):
         load_config(path)
 
 

@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from lidar3d.config import MotionConfig
-from lidar3d.mapping.motion_model import MotionModel
-from lidar3d.mapping.registration import PlaneMap, PosePrior, observed_share, solve_pose
+from lidar3d.mapping.motion_model import MotionModel, nominal_step_information
+from lidar3d.mapping.registration import PlaneMap, PosePrior, observed_share, solve_pose, unobserved_directions
 from lidar3d.mapping.se3 import pose_from_xyz_rpy, xyz_rpy_from_pose
 
 # A sensor mounted with its x axis 30 degrees to the left of the direction of travel: the
@@ -157,3 +157,81 @@ def test_vehicle_prior_is_tight_sideways_and_loose_along_travel():
     assert np.sqrt(along) == pytest.approx(MotionConfig().forward_accel_mps2 * 0.01, rel=1e-4)
     assert np.sqrt(side @ covariance @ side) == pytest.approx(MotionConfig().lateral_accel_mps2 * 0.01, rel=1e-4)
     np.testing.assert_allclose(prior.T_target_source[:3, 3], 0.1 * model.vehicle_twist()[:3], atol=1e-3)
+
+
+def test_unobserved_directions_compare_the_rows_with_the_reference_in_its_own_units():
+    reference = np.diag([1.0 / 0.02**2, 1.0 / 0.02**2, 1.0 / 0.02**2, 1e4, 1e4, 1e4])
+    # The rows know x to 1 cm (4x the reference), y to 4 cm (a quarter), the rest well; z and yaw
+    # are coupled, so the test must work on directions, not on the diagonal.
+    information = np.diag([1.0 / 0.01**2, 1.0 / 0.04**2, 1e5, 1e6, 1e6, 1e6])
+    information[2, 5] = information[5, 2] = 2e5
+    count, projector = unobserved_directions(information, reference)
+    assert count == 1
+    step = np.array([0.1, 0.2, 0.3, 0.01, 0.02, 0.03])
+    kept = projector @ step
+    assert kept[1] == pytest.approx(0.0, abs=1e-12)  # the unobserved lateral step is removed
+    np.testing.assert_allclose(kept[[0, 2, 3, 4, 5]], step[[0, 2, 3, 4, 5]], atol=1e-12)
+    # Twenty times the information along y (5x the reference) makes it observed.
+    information[1, 1] *= 20.0
+    assert unobserved_directions(information, reference) == (0, pytest.approx(np.eye(6)))
+
+
+def test_a_wall_on_open_ground_leaves_the_lateral_direction_to_the_reference():
+    points = _ground_and_wall()
+    reference = nominal_step_information(MotionConfig(), 0.1)
+    T_init = pose_from_xyz_rpy(np.array([0.05, 0.8, 0.03, 0.0, 0.0, 0.0]))
+    result = _solve(points, T_init, reference_information=reference)
+    assert result.degenerate_axes == 1
+    x = xyz_rpy_from_pose(result.T_target_source)
+    assert x[1] == pytest.approx(0.8, abs=0.02)  # kept at the guess (no prior)
+    assert abs(x[0]) < 0.005 and abs(x[2]) < 0.005
+
+
+def test_few_rows_that_pin_every_direction_are_not_degenerate():
+    """LeGO-LOAM's fixed eigenvalue threshold (100 unit-normal rows) calls a scene with 60 points on
+    each of two walls degenerate; their rows still know x and y to a fraction of a millimetre."""
+    rng = np.random.default_rng(7)
+    g = rng.uniform(-15, 15, size=(3000, 2))
+    ground = np.c_[g, np.full(len(g), -1.8)]
+    w = rng.uniform([-10, -1.5], [10, 6], size=(60, 2))
+    walls = np.concatenate([np.c_[np.full(60, 12.0), w], np.c_[w[:, 0], np.full(60, 9.0), w[:, 1]]])
+    points = np.concatenate([ground, walls])
+    target = PlaneMap(np.concatenate([ground, _dense_walls(rng)]), k=10, max_sq_dist=2.0)
+    common = {"max_iterations": 10, "min_rows": 50, "level_normal_z": 0.9}
+    T_init = pose_from_xyz_rpy(np.array([0.03, -0.02, 0.01, 0.0, 0.0, 0.0]))
+    loam = solve_pose(T_init, points, lambda q, reach: target.rows(q, reach), degeneracy_threshold=100.0, **common)
+    assert loam.degenerate_axes >= 1
+    reference = nominal_step_information(MotionConfig(), 0.1)
+    ours = solve_pose(T_init, points, lambda q, reach: target.rows(q, reach), reference_information=reference, **common)
+    assert ours.degenerate_axes == 0
+    np.testing.assert_allclose(xyz_rpy_from_pose(ours.T_target_source)[:3], 0.0, atol=0.002)
+
+
+def _dense_walls(rng):
+    w = rng.uniform([-10, -1.5], [10, 6], size=(3000, 2))
+    return np.concatenate([np.c_[np.full(len(w), 12.0), w], np.c_[w[:, 0], np.full(len(w), 9.0), w[:, 1]]])
+
+
+def _forward_sigma_after(offsets_m):
+    """The prior's sigma along the direction of travel after registrations that landed
+    ``offsets_m`` ahead of each prior's mean."""
+    model = MotionModel()
+    _drive(model, 30, np.random.default_rng(9), lateral_noise=0.0)
+    config = MotionConfig()
+    T = np.eye(4)
+    for offset in offsets_m:
+        prior = model.prior(T, 0.1, config)
+        T = prior.T_target_source.copy()
+        T[:3, 3] += offset * model.forward_axis
+        model.learn_innovation(prior, T, config.innovation_smoothing)
+    prior = model.prior(T, 0.1, config)
+    return float(np.sqrt(model.forward_axis @ np.linalg.inv(prior.information[:3, :3]) @ model.forward_axis))
+
+
+def test_a_persistent_prediction_error_widens_the_prior_and_registration_noise_does_not():
+    nominal = MotionConfig().forward_accel_mps2 * 0.1**2
+    assert _forward_sigma_after([0.0] * 10) == pytest.approx(nominal, rel=1e-3)
+    braking = _forward_sigma_after([-0.08] * 10)  # the model keeps predicting too far
+    assert braking > 3.0 * nominal
+    jitter = _forward_sigma_after([0.08, -0.08] * 5)  # a registration error and its echo
+    assert jitter == pytest.approx(nominal, rel=1e-3)

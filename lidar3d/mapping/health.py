@@ -201,7 +201,8 @@ def _difference_m(delta: np.ndarray, lever_m: float) -> float:
 def _prior_axes(track: TrackResult) -> int:
     """Axes of ``[tx, ty, tz, roll, pitch, yaw]`` the motion prior decided more than the scan (the
     scan removed less than half of the prior's variance there); without a prior, the directions
-    LOAM's eigenvalue test left degenerate (kept at the guess); 6 when the registration did not run."""
+    the rows knew less well than the vehicle model's nominal uncertainty (kept at the guess,
+    :func:`~lidar3d.mapping.registration.unobserved_directions`); 6 when the registration did not run."""
     registration = track.registration
     if registration is None:
         return 6

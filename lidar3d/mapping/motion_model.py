@@ -43,7 +43,7 @@ from lidar3d.config import MotionConfig
 from lidar3d.mapping.registration import PosePrior
 from lidar3d.mapping.se3 import exp_se3
 
-__all__ = ["MotionModel"]
+__all__ = ["MotionModel", "nominal_step_information"]
 
 
 class MotionModel:
@@ -81,7 +81,9 @@ class MotionModel:
         self._constrained = 0
         self.last_well_constrained = False
         self._smoothed: np.ndarray | None = None
-        self._innovation_sq = np.zeros(6)  # running mean squared prior error: basis x, y, z, tilt, tilt, yaw
+        # running mean of consecutive prior errors' products: basis x, y, z, tilt, tilt, yaw
+        self._innovation_product = np.zeros(6)
+        self._last_innovation: np.ndarray | None = None
 
     def update(self, twist: np.ndarray, well_constrained: bool, heading_observed: bool = True) -> None:
         """Take the twist (v m/s, w rad/s, body frame) estimated for the latest scan.
@@ -150,38 +152,43 @@ class MotionModel:
         lateral /= np.linalg.norm(lateral)
         return np.column_stack([axis, lateral, np.cross(axis, lateral)])
 
-    def learn_innovation(self, prior: PosePrior, T_world_registered: np.ndarray, smoothing: float) -> None:
-        """Take how far a well-constrained registration (4,4) landed from the ``prior`` mean: its
-        running mean square per body axis widens the prior where the model has been predicting
-        badly (entering a turn, braking hard), by ``smoothing`` (weight of the newest)."""
+    def learn_innovation(
+        self, prior: PosePrior, T_world_registered: np.ndarray, smoothing: float, well_constrained: bool = True
+    ) -> None:
+        """Take how far a registration (4,4) landed from the ``prior`` mean (the innovation, per
+        body axis) to widen the prior where the model has been predicting badly (entering a turn,
+        braking hard), by ``smoothing`` (weight of the newest).
+
+        The widening is the running mean of the product of consecutive innovations, clipped at
+        zero, not of their square. An innovation is the model's prediction error plus the
+        registration's own error. A prediction error persists over several scans (a braking or a
+        turn entry lasts seconds), so consecutive innovations share its sign; a registration error
+        does not (a pose off by e enters this innovation as +e and, carried in the next
+        prediction, the next one as about -e), so it averages out of the product instead of
+        widening the prior, which would give the next noisy registration more room still. A scan
+        that is not ``well_constrained`` teaches nothing and breaks the chain."""
+        if not well_constrained:
+            self._last_innovation = None
+            return
         delta = np.linalg.inv(prior.T_target_source) @ T_world_registered
         rotation = Rotation.from_matrix(delta[:3, :3]).as_rotvec()
-        sample = np.r_[self._basis().T @ delta[:3, 3], rotation] ** 2
+        innovation = np.r_[self._basis().T @ delta[:3, 3], rotation]
+        last, self._last_innovation = self._last_innovation, innovation
+        if last is None:
+            return
+        sample = np.maximum(innovation * last, 0.0)
         tilt = 0.5 * (sample[3] + sample[4])
         sample[3] = sample[4] = tilt
-        self._innovation_sq = (1.0 - smoothing) * self._innovation_sq + smoothing * sample
+        self._innovation_product = (1.0 - smoothing) * self._innovation_product + smoothing * sample
 
     def prior(self, T_world_previous: np.ndarray, dt_s: float, config: MotionConfig) -> PosePrior:
         """The pose ``dt_s`` after ``T_world_previous`` (4,4) under :meth:`vehicle_twist`, with the
         information its bounded accelerations allow (see :class:`~lidar3d.config.MotionConfig`),
-        widened to the recent root mean square prediction error where that is larger."""
+        widened where the recent prediction errors that persisted from scan to scan are larger
+        (:meth:`learn_innovation`)."""
         T_mean = T_world_previous @ exp_se3(self.vehicle_twist() * dt_s)
-        dt2 = dt_s * dt_s
-        forward = config.forward_accel_mps2 * dt2
-        if self.forward_axis is None:
-            sigma_t = np.full(3, forward)
-        else:
-            sigma_t = np.array([forward, config.lateral_accel_mps2 * dt2, config.vertical_accel_mps2 * dt2])
-        tilt = config.tilt_accel_rad_s2 * dt2
-        sigma_r = np.array([tilt, tilt, config.yaw_accel_rad_s2 * dt2])
-        sigma = np.maximum(np.r_[sigma_t, sigma_r], np.sqrt(self._innovation_sq))
-        sigma[:3] = np.maximum(sigma[:3], config.min_sigma_m)
-        sigma[3:] = np.maximum(sigma[3:], np.radians(config.min_sigma_deg))
-        axes_world = T_mean[:3, :3] @ self._basis()
-        information = np.zeros((6, 6))
-        information[:3, :3] = axes_world @ np.diag(sigma[:3] ** -2.0) @ axes_world.T
-        information[3:, 3:] = np.diag(sigma[3:] ** -2.0)
-        return PosePrior(T_mean, information)
+        sigma = np.maximum(_step_sigma(config, dt_s, self.forward_axis is not None), np.sqrt(self._innovation_product))
+        return PosePrior(T_mean, _information(sigma, T_mean[:3, :3] @ self._basis(), config))
 
     def _on_axis(self, twist: np.ndarray) -> np.ndarray:
         axis = self.forward_axis
@@ -189,3 +196,37 @@ class MotionModel:
         if axis is not None:
             twist[:3] = (twist[:3] @ axis) * axis
         return twist
+
+
+def nominal_step_information(config: MotionConfig, dt_s: float) -> np.ndarray:
+    """(6, 6) information over ``[tx, ty, tz, roll, pitch, yaw]`` (m, rad) of the vehicle model
+    over ``dt_s`` before it knows the direction of travel: every translation axis with the forward
+    acceleration's sigma, rotations with the tilt and yaw ones (the yardstick a registration
+    without a vehicle prior is judged against, :func:`~lidar3d.mapping.registration.unobserved_directions`)."""
+    return _information(_step_sigma(config, dt_s, vehicle=False), np.eye(3), config)
+
+
+def _step_sigma(config: MotionConfig, dt_s: float, vehicle: bool) -> np.ndarray:
+    """(6,) sigmas of one step of ``dt_s`` under bounded accelerations: along the body basis
+    (direction of travel, sideways, up) when ``vehicle``, the forward value on every axis
+    otherwise, then tilt, tilt, yaw."""
+    dt2 = dt_s * dt_s
+    forward = config.forward_accel_mps2 * dt2
+    if vehicle:
+        sigma_t = np.array([forward, config.lateral_accel_mps2 * dt2, config.vertical_accel_mps2 * dt2])
+    else:
+        sigma_t = np.full(3, forward)
+    tilt = config.tilt_accel_rad_s2 * dt2
+    return np.r_[sigma_t, tilt, tilt, config.yaw_accel_rad_s2 * dt2]
+
+
+def _information(sigma: np.ndarray, axes_world: np.ndarray, config: MotionConfig) -> np.ndarray:
+    """(6, 6) information of (6,) sigmas (translations along the columns of the (3, 3)
+    ``axes_world``, then rotations), each raised to the configured minimum first."""
+    sigma = sigma.copy()
+    sigma[:3] = np.maximum(sigma[:3], config.min_sigma_m)
+    sigma[3:] = np.maximum(sigma[3:], np.radians(config.min_sigma_deg))
+    information = np.zeros((6, 6))
+    information[:3, :3] = axes_world @ np.diag(sigma[:3] ** -2.0) @ axes_world.T
+    information[3:, 3:] = np.diag(sigma[3:] ** -2.0)
+    return information

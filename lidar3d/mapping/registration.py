@@ -13,13 +13,21 @@ s <= 0.1 dropped; LeGO-LOAM mapOptmization.cpp:1160, 1214) or a Geman-McClure ke
 uses). Directions the rows leave unobserved are handled in one of two ways:
 
 * without a prior, LOAM's solution remapping (Zhang et al., "On degeneracy of optimization-based
-  state estimation problems", ICRA 2016): on the first iteration, directions of J^T J with
-  eigenvalue below a threshold are projected out of every update, so they keep the initial guess;
+  state estimation problems", ICRA 2016): on the first iteration, the directions the rows leave
+  unobserved are projected out of every update, so they keep the initial guess;
 * with a Gaussian :class:`PosePrior` (a motion model's prediction and its information), the
   maximum a posteriori pose: the rows' information ``J^T W J / sigma^2`` (``sigma^2`` the weighted
   residual variance of the current iteration) is added to the prior's, so each direction takes
   the data where the data is more certain than the prior and the prior where it is not, with no
   threshold and no switch between the two.
+
+Which directions are unobserved is decided by :func:`unobserved_directions`: against a
+*reference* belief (the vehicle model's uncertainty over one scan), a direction is unobserved when
+the rows know it less well than the reference does, i.e. where the rows' information, measured in
+the reference's units, is below 1. This is scale free (translations and rotations need no lever
+arm) and counts what the rows tell, not how many rows there are; LeGO-LOAM's test (eigenvalues of
+``J^T J`` below 100, with unit-normal rows) is kept for the scan-to-scan odometry, whose steps are
+judged against a fixed row count (``degeneracy_threshold``).
 """
 
 from __future__ import annotations
@@ -45,6 +53,7 @@ __all__ = [
     "plane_rows_from_normals",
     "probe_return_share",
     "solve_pose",
+    "unobserved_directions",
 ]
 
 ALL_AXES = (0, 1, 2, 3, 4, 5)
@@ -126,8 +135,11 @@ class SolveResult:
         iterations: Gauss-Newton iterations run.
         converged: the last update was below the convergence thresholds.
         n_rows: residual rows used in the last iteration.
-        degenerate_axes: number of directions of J^T J with an eigenvalue below the degeneracy
-            threshold at the first iteration (without a prior these were projected out).
+        degenerate_axes: number of directions the rows left unobserved: with a reference belief,
+            directions where the rows' information at the last iteration is below the
+            reference's (:func:`unobserved_directions`); otherwise directions of J^T J with an
+            eigenvalue below the degeneracy threshold at the first iteration. Without a prior
+            these were projected out of the updates.
         min_eigenvalue: smallest eigenvalue of J^T J at the first iteration.
         information: (6, 6) the rows' information ``J^T W J / sigma^2`` about
             ``[tx, ty, tz, roll, pitch, yaw]`` at the last iteration (zero rows and columns for
@@ -355,6 +367,32 @@ def observed_share(information: np.ndarray, prior_information: np.ndarray) -> np
     return np.clip(1.0 - posterior_var / prior_var, 0.0, 1.0)
 
 
+def unobserved_directions(information: np.ndarray, reference_information: np.ndarray) -> tuple[int, np.ndarray]:
+    """The directions of the pose the rows observe less well than a reference belief does.
+
+    Solves ``information v = lambda reference_information v`` (both (n, n) over the same
+    parameters, the reference positive definite): ``lambda`` is how many times the reference's
+    information the rows hold along ``v``, in the reference's own units, so translations and
+    rotations are compared without a lever arm and a direction counts by what the rows tell
+    about it, not by how many rows there are.
+
+    Returns ``(unobserved, projector)``: the number of directions with ``lambda < 1`` and the
+    (n, n) projector that removes them from an update and keeps the observed ones (with the
+    directions ``V`` normalised so that ``V^T reference V = I``, ``V diag(kept) V^T reference``;
+    the identity when every direction is observed).
+    """
+    lower = np.linalg.cholesky(reference_information)
+    lower_inv = np.linalg.inv(lower)
+    whitened = lower_inv @ information @ lower_inv.T
+    values, vectors = np.linalg.eigh(0.5 * (whitened + whitened.T))
+    kept = values >= 1.0
+    unobserved = int(np.count_nonzero(~kept))
+    if not unobserved:
+        return 0, np.eye(len(values))
+    directions = lower_inv.T @ vectors
+    return unobserved, directions @ np.diag(kept.astype(float)) @ directions.T @ reference_information
+
+
 def _wrapped_difference(x: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """``x - reference`` over ``[tx, ty, tz, roll, pitch, yaw]``, angles wrapped to [-pi, pi)."""
     d = x - reference
@@ -468,6 +506,7 @@ def solve_pose(
     initial_scale_m: float = 0.0,
     data_scaling: np.ndarray | None = None,
     anneal: bool = True,
+    reference_information: np.ndarray | None = None,
 ) -> SolveResult:
     """Estimate ``T_target_source`` minimising the matched rows' residuals.
 
@@ -500,6 +539,11 @@ def solve_pose(
             becomes ``M^T H M`` (:func:`~lidar3d.mapping.scan_to_map.register_to_submap` scales
             a direction whose information the cost does not hold, see :func:`probe_return_share`).
         anneal: False starts the Geman-McClure kernel at its final scale (a warm start).
+        reference_information: (6, 6) the belief a direction is judged against: the rows leave a
+            direction unobserved when they know it less well than this
+            (:func:`unobserved_directions`; at the first iteration for the projection, at the
+            last for ``degenerate_axes``); None selects the eigenvalue test with
+            ``degeneracy_threshold``.
 
     Returns a :class:`SolveResult`; when there are fewer than ``min_rows`` rows on the first
     iteration, the initial guess is returned with ``iterations == 0``.
@@ -508,6 +552,7 @@ def solve_pose(
     free = np.asarray(free_axes, dtype=np.int64)
     x_prior = None if prior is None else _xyz_rpy(prior.T_target_source)
     prior_information = None if prior is None else prior.information[np.ix_(free, free)]
+    reference = None if reference_information is None else reference_information[np.ix_(free, free)]
     projector = None
     degenerate = 0
     min_eig = float("nan")
@@ -567,11 +612,16 @@ def solve_pose(
         information[np.ix_(free, free)] = H / sigma_m**2
         if iteration == 0:
             vals, vecs = np.linalg.eigh(H)
-            keep = vals >= degeneracy_threshold
-            degenerate = int((~keep).sum())
             min_eig = float(vals[0])
-            if degenerate and prior is None:
-                projector = vecs @ np.diag(keep.astype(float)) @ vecs.T
+            if reference is not None:
+                degenerate, reference_projector = unobserved_directions(information[np.ix_(free, free)], reference)
+                if degenerate and prior is None:
+                    projector = reference_projector
+            else:
+                keep = vals >= degeneracy_threshold
+                degenerate = int((~keep).sum())
+                if degenerate and prior is None:
+                    projector = vecs @ np.diag(keep.astype(float)) @ vecs.T
         if prior_information is not None and x_prior is not None:
             # Maximum a posteriori step: rows and prior, each weighted by its information.
             A = H / sigma_m**2 + prior_information
@@ -597,6 +647,8 @@ def solve_pose(
             iteration += 1
             break
         iteration += 1
+    if reference is not None:
+        degenerate = unobserved_directions(information[np.ix_(free, free)], reference)[0]
     return SolveResult(
         _pose(x, _rotation_and_derivatives(x)[0]),
         iteration,

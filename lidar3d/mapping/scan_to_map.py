@@ -2,8 +2,10 @@
 
 LeGO-LOAM mapOptmization.cpp 1093-1336: corners match lines and surfaces match planes fitted to
 5 nearby submap points (see :class:`~lidar3d.mapping.registration.LineMap` and
-:class:`~lidar3d.mapping.registration.PlaneMap`); at least 50 rows, Gauss-Newton with
-degeneracy threshold 100.
+:class:`~lidar3d.mapping.registration.PlaneMap`); at least 50 rows, Gauss-Newton. LeGO-LOAM calls a
+direction degenerate below a fixed eigenvalue of ``J^T J`` (100, a count of unit-normal rows);
+here it is one the rows know less well than the vehicle model does over the scan interval
+(:func:`~lidar3d.mapping.registration.unobserved_directions`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ def register_to_submap(
     max_iterations: int | None = None,
     prior: PosePrior | None = None,
     *,
+    reference_information: np.ndarray,
     widen_search: bool = True,
 ) -> SolveResult:
     """Refine ``T_world_lidar`` of a scan whose features are given in its lidar frame.
@@ -45,7 +48,9 @@ def register_to_submap(
     search start as wide as the prior's uncertainty moves the corner points (one standard
     deviation at their median range), so a turn the prior did not expect is still matched;
     without ``widen_search`` they start at their final width (a prior that only keeps the guess
-    where the rows are silent).
+    where the rows are silent). ``reference_information``: (6, 6) the vehicle model's information
+    over the scan interval; a direction the rows know less well than that is degenerate
+    (``degenerate_axes``; without a prior it keeps the guess).
     """
     source = np.concatenate([corner_lidar, surf_lidar])
     find_matches = _matcher(target, len(corner_lidar), len(surf_lidar))
@@ -53,7 +58,7 @@ def register_to_submap(
         solve_pose,
         rematch_every=config.rematch_every,
         min_rows=config.min_rows,
-        degeneracy_threshold=config.degeneracy_threshold,
+        reference_information=reference_information,
         converge_rotation_deg=config.converge_rotation_deg,
         converge_translation_m=config.converge_translation_m,
         robust_scale_m=config.robust_scale_m,

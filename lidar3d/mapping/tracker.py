@@ -41,7 +41,7 @@ from lidar3d.config import Config, MotionConfig
 from lidar3d.features.frontend import PreparedScan
 from lidar3d.mapping.deskew import twist_between
 from lidar3d.mapping.keyframes import Submap
-from lidar3d.mapping.motion_model import MotionModel
+from lidar3d.mapping.motion_model import MotionModel, nominal_step_information
 from lidar3d.mapping.odometry import OdometryStep, ScanToScanOdometry
 from lidar3d.mapping.registration import PosePrior, SolveResult, observed_share
 from lidar3d.mapping.scan_to_map import register_to_submap
@@ -149,6 +149,7 @@ class _Unsettled:
     registered: bool  # the pose came from a registration with no degenerate direction
     reference_offset_s: float
     reference_twist: np.ndarray  # moves the pose from the stamp to the reference instant
+    reference_information: np.ndarray  # (6, 6) what its rows were judged against (the vehicle prior's)
 
 
 class Tracker:
@@ -178,6 +179,7 @@ class Tracker:
         self._heading_shortfall = odo.heading_shortfall
         self._submap = submap
         self._motion = MotionModel()
+        self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
         self._latest: _Latest | None = None
         self._motion_known = False  # the motion model has learned a twist
         self._unsettled: _Unsettled | None = None
@@ -205,8 +207,10 @@ class Tracker:
         motion_known = self._motion_known
         T_world_reference = _moved_by(T_world_lidar, offset_s, predicted)
         well_constrained = refinement.registration is not None and refinement.registration.degenerate_axes == 0
-        if well_constrained and refinement.prior is not None:
-            self._motion.learn_innovation(refinement.prior, T_world_lidar, self._vehicle.innovation_smoothing)
+        if refinement.prior is not None:
+            self._motion.learn_innovation(
+                refinement.prior, T_world_lidar, self._vehicle.innovation_smoothing, well_constrained
+            )
         if previous is not None:
             self._motion.update(
                 twist_between(previous.T_world_reference, T_world_reference, reference_dt_s),
@@ -224,7 +228,16 @@ class Tracker:
         if self._unsettled is not None:
             with clock("redeskew"):
                 settled = self._settle(self._unsettled, self._motion.twist)
-        self._unsettled = _Unsettled(scan, sweep, T_world_lidar, predicted, well_constrained, offset_s, reference_twist)
+        self._unsettled = _Unsettled(
+            scan,
+            sweep,
+            T_world_lidar,
+            predicted,
+            well_constrained,
+            offset_s,
+            reference_twist,
+            self._reference(refinement.prior),
+        )
         self._latest = _Latest(scan.stamp_ns, T_world_lidar, T_world_odom, reference_ns, T_world_reference)
         return TrackResult(
             stamp_ns=scan.stamp_ns,
@@ -270,6 +283,7 @@ class Tracker:
                 u.registered,
                 u.reference_offset_s,
                 u.reference_twist,
+                u.reference_information,
             )
 
     def _register(
@@ -277,16 +291,33 @@ class Tracker:
         deskewed: SweepFeatures,
         T_world_lidar: np.ndarray,
         iterations: int,
-        prior: PosePrior | None = None,
-        widen_search: bool = True,
+        prior: PosePrior | None,
+        reference_information: np.ndarray,
+        widen_search: bool,
     ) -> SolveResult:
         """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar``, fused with
-        ``prior`` when given (see :func:`register_to_submap`)."""
+        ``prior`` when given; a direction the rows know less well than the (6, 6)
+        ``reference_information`` is degenerate (see :func:`register_to_submap`)."""
         mp = self._mapping
         corner, surf = deskewed.registration_clouds(mp)
         surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
         target = self._submap.target(T_world_lidar[:3, 3])
-        return register_to_submap(target, corner, surf, T_world_lidar, mp, iterations, prior, widen_search=widen_search)
+        return register_to_submap(
+            target,
+            corner,
+            surf,
+            T_world_lidar,
+            mp,
+            iterations,
+            prior,
+            reference_information=reference_information,
+            widen_search=widen_search,
+        )
+
+    def _reference(self, vehicle: PosePrior | None) -> np.ndarray:
+        """(6, 6) what a scan's rows are judged against: the vehicle prior's information once the
+        motion model is established, its nominal uncertainty over one sweep before."""
+        return self._nominal_information if vehicle is None else vehicle.information
 
     def _refine(
         self,
@@ -316,7 +347,9 @@ class Tracker:
             prior = _moved_prior(at_reference, -offset_s, twist)
         heading = _odometry_heading(T_world_lidar, step, self._heading_shortfall) if self._fuse_heading else None
         fused = _fused(prior, heading, T_world_lidar, self._vehicle)
-        refined = self._register(deskewed, T_world_lidar, self._mapping.max_iterations, fused, prior is not None)
+        refined = self._register(
+            deskewed, T_world_lidar, self._mapping.max_iterations, fused, self._reference(prior), prior is not None
+        )
         if refined.iterations == 0:
             return _Refinement(T_world_lidar, step.used_motion_model, None)
         measured = refined.information if heading is None else refined.information + heading.information
@@ -336,7 +369,9 @@ class Tracker:
         if not unsettled.registered or moved_m * self._sweep_period_s < mp.redeskew_threshold_m:
             return kept
         guess = _kept_at_reference(unsettled, twist)
-        refined = self._register(unsettled.sweep.deskewed(twist), guess, mp.redeskew_iterations)
+        refined = self._register(
+            unsettled.sweep.deskewed(twist), guess, mp.redeskew_iterations, None, unsettled.reference_information, False
+        )
         if refined.iterations == 0 or refined.degenerate_axes:
             return kept
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
