@@ -421,10 +421,12 @@ class HealthConfig:
     A scan *observes* its pose when its registration ran, the pose's standard deviation along the
     weakest direction of the scan's information is at most ``observed_sigma_m``, and its refined step
     agrees with the scan-to-scan odometry step within ``max_disagreement_m``; it observes every
-    direction when its registration also took none from the prior. After ``degraded_after_m`` of
-    travel with some direction dead-reckoned the scans are ``degraded``; after ``lost_after_m`` of
-    travel with the pose not observed they are ``lost``; ``degraded_after_m`` of fully observed
-    travel clears both. Besides, a scan is ``degraded`` while the refined trajectory and the
+    direction when its registration also took none from the prior. A scan is ``degraded`` when
+    the standard deviation of its pose (:mod:`lidar3d.mapping.pose_uncertainty`: the vehicle
+    model's accelerations between scans, the registration's information at each; translation plus
+    ``lever_m`` times rotation) is above ``degraded_sigma_m``; after ``lost_after_m`` of travel with
+    the pose not observed the scans are ``lost``, until ``clear_after_m`` of fully observed travel
+    in a row. Besides, a scan is ``degraded`` while the refined trajectory and the
     scan-to-scan odometry parted over the last ``consistency_window_m``, in heading or in distance
     along the steps, by more than ``max_consistency_z`` standard deviations of the odometry's own
     (its rows', and the floors ``heading_sigma_floor_deg`` and ``along_sigma_floor_m``); a difference
@@ -442,8 +444,11 @@ class HealthConfig:
     max_disagreement_m: float = _key(
         0.2, _positive(100.0, "m"), "refined and odometry steps farther apart than this: the scan is inconsistent"
     )
-    degraded_after_m: float = _key(
-        2.0, _positive(1e5, "m"), "travel with a direction dead-reckoned before degraded (as much observed clears it)"
+    degraded_sigma_m: float = _key(
+        0.1, _positive(100.0, "m"), "pose std (vehicle model between scans, the rows at each) above which degraded"
+    )
+    clear_after_m: float = _key(
+        2.0, _positive(1e5, "m"), "fully observed travel in a row that clears the dead-reckoned and blind travel"
     )
     lost_after_m: float = _key(10.0, _positive(1e6, "m"), "travel with the pose not observed before scans are lost")
     consistency_window_m: float = _key(
@@ -748,11 +753,6 @@ def _check_relations(config: Config) -> None:
             f"config segmentation.ground_rows: {config.segmentation.ground_rows} exceeds the "
             f"{sensor.n_rings} rings of {sensor.name}"
         )
-    if config.health.lost_after_m < config.health.degraded_after_m:
-        raise ConfigError(
-            f"config health.lost_after_m: {config.health.lost_after_m!r} is below health.degraded_after_m "
-            f"({config.health.degraded_after_m!r}); a scan is degraded before it is lost"
-        )
     if config.features.sharp_per_section > config.features.less_sharp_per_section:
         raise ConfigError(
             f"config features.sharp_per_section: {config.features.sharp_per_section} exceeds "
@@ -797,6 +797,9 @@ _RETIRED_KEYS = {
     "that many nearest neighbours since it runs on small_gicp, docs/stages/loop-closure.md)",
     "mapping.degeneracy_threshold": "the [motion] section's uncertainties (a scan-to-submap direction is "
     "degenerate where the rows know it less well than the vehicle model does, docs/stages/odometry-mapping.md)",
+    "health.degraded_after_m": "health.degraded_sigma_m (a scan is degraded by how uncertain its pose is, not by "
+    "the travel with a direction left to the prior) and health.clear_after_m (the observed travel that clears the "
+    "travel counters), docs/stages/health.md",
 }
 """Keys of earlier releases that a config file may still hold: what replaced each."""
 

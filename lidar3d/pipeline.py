@@ -40,6 +40,7 @@ from lidar3d.mapping.dense_map import DenseMap
 from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
 from lidar3d.mapping.map_pieces import MapPieces, PieceStore
+from lidar3d.mapping.pose_uncertainty import PoseUncertainty
 from lidar3d.mapping.step_uncertainty import StepUncertainty
 from lidar3d.mapping.sweep import SweepFeatures
 from lidar3d.mapping.tracker import SettledSweep, Tracker
@@ -155,6 +156,7 @@ class SlamPipeline:
         self.loop = LoopCloser(config.loop) if config.loop.enabled else None
         self.health = HealthMonitor(config.health)
         self._step_uncertainty = StepUncertainty(config.motion)
+        self._pose_uncertainty = PoseUncertainty(config.motion)
         self.stats = RunStatistics()
         self._map = _dense_map(config, self.loop is not None, piece_store, self.stats if map_in_process else None)
         self._estimates: list[ScanEstimate] = []
@@ -185,13 +187,13 @@ class SlamPipeline:
         self.stats.add_timings(prepared.stage_ms)
         previous = self._estimates[-1] if self._estimates else None
         track = self.tracker.track(prepared)
+        dt_s = (stamp_ns - previous.stamp_ns) * 1e-9 if previous is not None else 0.0
+        rows_information = track.registration.information if track.registration is not None else None
         self._step_uncertainty.add(
-            track.T_world_lidar,
-            (stamp_ns - previous.stamp_ns) * 1e-9 if previous is not None else 0.0,
-            track.registration.information if track.registration is not None else None,
-            track.prior.information if track.prior is not None else None,
+            track.T_world_lidar, dt_s, rows_information, track.prior.information if track.prior is not None else None
         )
-        health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health))
+        pose_covariance = self._pose_uncertainty.add(track.T_world_lidar, dt_s, rows_information)
+        health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health, pose_covariance))
         self.stats.add_timings(track.timings_ms)
         if track.registration is not None and track.registration.degenerate_axes:
             self.stats.count("degenerate_scans")

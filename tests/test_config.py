@@ -50,6 +50,7 @@ def test_unknown_key_names_dotted_path(tmp_path):
             r"key 'loop\.normal_radius_m' is gone; it is replaced by loop\.icp_neighbours",
         ),
         ("[mapping]\ndegeneracy_threshold = 30\n", r"key 'mapping\.degeneracy_threshold' is gone; .*\[motion\]"),
+        ("[health]\ndegraded_after_m = 2.0\n", r"key 'health\.degraded_after_m' is gone; .*health\.degraded_sigma_m"),
     ],
 )
 def test_a_retired_key_names_its_replacement(tmp_path, text, message):

@@ -138,7 +138,6 @@ def _assert_accepted_config_is_sane(config: Config) -> None:
     sensor = config.sensor.resolved_model
     assert config.sensor.min_range_m < sensor.max_range_m
     assert config.segmentation.ground_rows <= sensor.n_rings
-    assert config.health.degraded_after_m <= config.health.lost_after_m
     assert config.features.sharp_per_section <= config.features.less_sharp_per_section
 
 

@@ -17,8 +17,8 @@ from test_summary import example_summary
 
 from lidar3d.batch.report import bag_row, write_report
 from lidar3d.cli.main import main
-from lidar3d.config import Config, HealthConfig, config_with
-from lidar3d.errors import ConfigError, SummaryError
+from lidar3d.config import HealthConfig
+from lidar3d.errors import SummaryError
 from lidar3d.io.health_csv import HEALTH_COLUMNS, HealthFileError, read_health_csv, write_health_csv
 from lidar3d.io.run_folder import RunFolderState, check_run_folder, publish_set
 from lidar3d.io.trajectory_io import write_tum
@@ -49,7 +49,8 @@ S = 10**9
 
 
 def measures(step_m: float = 0.5, *, sigma_m: float = 0.002, registered: bool = True, **changes) -> ScanMeasures:
-    """A scan moving ``step_m`` whose registration left ``sigma_m`` along its weakest direction."""
+    """A scan moving ``step_m`` whose registration left ``sigma_m`` along its weakest direction,
+    its pose known to 1 cm."""
     base = ScanMeasures(
         registered=registered,
         motion_model_only=False,
@@ -59,6 +60,7 @@ def measures(step_m: float = 0.5, *, sigma_m: float = 0.002, registered: bool = 
         step_m=step_m,
         odometry_disagreement_m=0.02,
         prediction_offset_m=0.02,
+        pose_sigma_m=0.01,
     )
     return dataclasses.replace(base, **changes)
 
@@ -75,22 +77,32 @@ def flags(health: list[ScanHealth]) -> str:
 # -- the classifier -------------------------------------------------------------------------------------
 
 
-def test_unobserved_travel_flags_degraded_then_lost_at_the_documented_distances():
-    # 0.5 m per scan: 2 m (degraded_after_m) after 4 unobserved scans, 10 m (lost_after_m) after 20.
+def test_unobserved_travel_is_lost_at_the_documented_distance():
+    # 0.5 m per scan: 10 m (lost_after_m) after 20 unobserved scans.
     blind = measures(sigma_m=10 * CONFIG.observed_sigma_m)
     health = assess_all([measures()] * 5 + [blind] * 24)
-    assert flags(health) == "o" * 5 + "ooo" + "d" * 16 + "l" * 5
+    assert flags(health) == "o" * 5 + "o" * 19 + "l" * 5
     assert [h.dead_reckoned_m for h in health[5:9]] == [h.blind_m for h in health[5:9]] == [0.5, 1.0, 1.5, 2.0]
     assert not any(h.observed for h in health[5:]) and all(h.observed for h in health[:5])
 
 
-def test_a_direction_taken_from_the_prior_degrades_but_never_loses_the_pose():
-    # Well observed but for one direction the registration took from the motion model.
-    one_from_prior = measures(prior_axes=1)
+def test_an_uncertain_pose_is_degraded_from_the_documented_sigma():
+    sigmas = [0.01, 0.05, CONFIG.degraded_sigma_m, 1.01 * CONFIG.degraded_sigma_m, 0.5, 0.05]
+    assert flags(assess_all([measures(pose_sigma_m=s) for s in sigmas])) == "ooodd" + "o"
+    # not measured (a table of an earlier release) is not evidence either way
+    assert flags(assess_all([measures(pose_sigma_m=float("nan"))] * 3)) == "ooo"
+
+
+def test_a_direction_taken_from_the_prior_is_counted_but_degrades_only_with_the_uncertainty():
+    # Well observed but for one direction the registration took from the motion model: a forest
+    # trail where the scans know it about as well as the vehicle model, the pose to 3 cm.
+    one_from_prior = measures(prior_axes=1, pose_sigma_m=0.03)
     assert one_from_prior.observes_pose(CONFIG) and not one_from_prior.observes_every_direction(CONFIG)
     health = assess_all([measures()] * 5 + [one_from_prior] * 100 + [measures()] * 4)
-    assert flags(health) == "o" * 5 + "ooo" + "d" * 97 + "ddd" + "o"
+    assert flags(health) == "o" * 109
     assert health[104].dead_reckoned_m == 50.0 and health[104].blind_m == 0.0
+    drifting = [dataclasses.replace(one_from_prior, pose_sigma_m=0.02 * k) for k in range(10)]
+    assert flags(assess_all(drifting)) == "oooooodddd"
     # Blind scans among them are counted apart: lost after 10 m of those alone.
     mixed = assess_all(([one_from_prior] * 3 + [measures(sigma_m=1.0)]) * 25)
     assert mixed[-1].blind_m == 12.5 and mixed[-1].flag is HealthFlag.LOST
@@ -108,7 +120,7 @@ def test_a_single_bad_scan_or_a_short_blind_patch_does_not_flag():
         health = assess_all([measures()] * 10 + [bad] + [measures()] * 10)
         assert flags(health) == "o" * 21, bad
         assert not health[10].observed
-    # Three blind scans at 0.5 m: 1.5 m, below degraded_after_m.
+    # Three blind scans at 0.5 m: 1.5 m.
     assert set(flags(assess_all([measures()] * 3 + [measures(sigma_m=1.0)] * 3 + [measures()] * 3))) == {"o"}
 
 
@@ -116,26 +128,22 @@ def test_observed_travel_clears_the_state_only_after_the_documented_distance():
     blind, seen = measures(sigma_m=1.0), measures()
     health = assess_all([blind] * 30 + [seen] * 3 + [blind] + [seen] * 4)
     # Lost after 20 blind scans; 1.5 m of observed travel is not enough, the blind scan restarts
-    # the count; 4 x 0.5 m = 2 m of observed travel clears it on the last scan.
-    assert flags(health) == "ooo" + "d" * 16 + "l" * 11 + "lll" + "l" + "lll" + "o"
+    # the count; 4 x 0.5 m = 2 m (clear_after_m) of observed travel clears it on the last scan.
+    assert flags(health) == "o" * 19 + "l" * 11 + "lll" + "l" + "lll" + "o"
     assert health[-1].dead_reckoned_m == 0.0
 
 
-def test_a_standstill_without_registration_never_flags():
+def test_a_standstill_without_registration_adds_no_travel():
+    """Neither lost nor inconsistent (here with its pose known, as while it registers)."""
     assert set(flags(assess_all([measures(step_m=0.0, registered=False)] * 200))) == {"o"}
 
 
 def test_thresholds_come_from_the_config():
-    blind = measures(step_m=1.0, sigma_m=0.05)
-    strict = HealthConfig(observed_sigma_m=0.1, degraded_after_m=1.0, lost_after_m=3.0)
-    assert flags(assess_all([blind] * 4)) == "oddd"  # default: 2 m, 10 m
-    assert flags(assess_all([blind] * 4, strict)) == "oooo"  # 0.05 m is observed under 0.1 m
-    assert flags(assess_all([measures(step_m=1.0, sigma_m=0.5)] * 4, strict)) == "ddll"
-
-
-def test_lost_after_must_not_be_below_degraded_after():
-    with pytest.raises(ConfigError, match=r"^config health\.lost_after_m: 1\.0 is below health\.degraded_after_m"):
-        config_with(Config(), {"health": {"lost_after_m": 1.0}})
+    blind = measures(step_m=1.0, sigma_m=0.05, pose_sigma_m=0.2)
+    strict = HealthConfig(observed_sigma_m=0.1, degraded_sigma_m=0.3, lost_after_m=3.0)
+    assert flags(assess_all([blind] * 12)) == "d" * 9 + "lll"  # default: 0.1 m, 10 m
+    assert flags(assess_all([blind] * 4, strict)) == "oooo"  # 0.05 m is observed under 0.1 m, 0.2 m under 0.3 m
+    assert flags(assess_all([measures(step_m=1.0, sigma_m=0.5)] * 4, strict)) == "ooll"
 
 
 # The window tests' arithmetic uses a 10 m window and floors of 0.1 deg and 0.05 m.
@@ -290,6 +298,18 @@ def test_prior_axes_count_the_axes_the_motion_prior_decided():
     assert m.weakest_sigma_m == pytest.approx(0.02 / np.sqrt(500.0))  # the measured residual sigma
 
 
+def test_a_direction_the_rows_do_not_see_has_an_infinite_sigma():
+    """An eigenvalue within rounding of zero (a direction projected out of the rows) is reported
+    as an infinite sigma, not as a length of 1e148 m."""
+    for rounding_zero in (1e-296, 6e-15):
+        registration = SolveResult(np.eye(4), 5, True, 3357, 1, rounding_zero, np.eye(6), 0.02)
+        m = scan_measures(_track(np.eye(4), np.eye(4), registration), None, CONFIG)
+        assert m.registered and m.weakest_sigma_m == np.inf
+    registration = SolveResult(np.eye(4), 5, True, 3357, 1, 1e-6, np.eye(6), 0.02)
+    m = scan_measures(_track(np.eye(4), np.eye(4), registration), None, CONFIG)
+    assert m.weakest_sigma_m == pytest.approx(20.0)
+
+
 def test_measures_without_registration_or_previous_scan():
     m = scan_measures(_track(np.eye(4), np.eye(4), None), None, CONFIG)
     assert not m.registered and m.weakest_sigma_m == np.inf and m.prior_axes == 6 and m.n_rows == 0
@@ -400,6 +420,23 @@ def test_health_csv_round_trip(tmp_path):
     assert [h.measures for h in back] == [h.measures for h in health]  # these values print exactly in 6 digits
 
 
+def test_a_health_csv_without_the_pose_uncertainty_is_read(tmp_path):
+    path = tmp_path / "health.csv"
+    write_health_csv(path, [0, 1], assess_all([measures(), measures()]))
+    lines = [line.rsplit(",", 1)[0] for line in path.read_text().splitlines()]
+    path.write_text("\n".join(lines) + "\n")
+    _, health = read_health_csv(path)
+    assert [np.isnan(h.measures.pose_sigma_m) for h in health] == [True, True]
+    assert health[1].measures.n_rows == 1500 and health[1].along_z == 0.0
+
+
+def test_scan_measures_take_the_pose_sigma_from_its_covariance():
+    covariance = np.diag([1e-8, 4e-6, 1e-6, 0.0025, 0.01, 0.0001])  # [w, v]: 2 mrad yaw, 0.1 m along y
+    m = scan_measures(_track(np.eye(4), np.eye(4), None), None, CONFIG, covariance)
+    assert m.pose_sigma_m == pytest.approx(0.1 + CONFIG.lever_m * 0.002)
+    assert np.isnan(scan_measures(_track(np.eye(4), np.eye(4), None), None, CONFIG).pose_sigma_m)
+
+
 def test_an_earlier_releases_health_csv_is_read_without_the_consistency_measures(tmp_path):
     path = tmp_path / "health.csv"
     earlier = HEALTH_COLUMNS[: HEALTH_COLUMNS.index("heading_difference_deg")]
@@ -417,11 +454,11 @@ def test_an_earlier_releases_health_csv_is_read_without_the_consistency_measures
         ("a,b\n", r"not a health table"),
         (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", rf"health\.csv:2: 3 columns, expected {len(HEALTH_COLUMNS)}"),
         (
-            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0\n",
+            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01\n",
             r"health\.csv:2: flag 'fine' is not one of",
         ),
         (
-            ",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0\n",
+            ",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01\n",
             r"health\.csv:2: 'yes' is not 0 or 1",
         ),
     ],
@@ -478,10 +515,10 @@ def test_a_run_writes_health_csv_consistent_with_its_summary(default_run):
 
 
 def _run_observing_nothing(bag: Path, tmp_path: Path, lost_after_m: float) -> RunSummary:
-    """``lidar3d run`` (exit 0) where nothing counts as observed and a centimetre of travel makes a
-    scan degraded, ``lost_after_m`` lost; the checked summary of its folder."""
+    """``lidar3d run`` (exit 0) where nothing counts as observed and any uncertainty of the pose makes
+    a scan degraded, ``lost_after_m`` lost; the checked summary of its folder."""
     config = tmp_path / "observing_nothing.toml"
-    config.write_text(f"[health]\nobserved_sigma_m = 1e-9\ndegraded_after_m = 0.01\nlost_after_m = {lost_after_m}\n")
+    config.write_text(f"[health]\nobserved_sigma_m = 1e-9\ndegraded_sigma_m = 1e-9\nlost_after_m = {lost_after_m}\n")
     out = tmp_path / "out"
     assert main(["-q", "run", str(bag), "--out", str(out), "--no-loop", "--config", str(config)]) == 0
     return _check_folder_health(out)

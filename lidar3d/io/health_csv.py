@@ -10,7 +10,9 @@ registration did not run), ``heading_difference_deg`` (the refined step's yaw mi
 step's), ``odometry_yaw_sigma_deg`` (``inf`` when the odometry measured no yaw),
 ``odometry_yaw_travel_deg`` (the yaw the odometry moved from its guess), ``along_difference_m``,
 ``odometry_along_sigma_m`` and ``odometry_along_travel_m`` (the same along the step), ``heading_z``
-and ``along_z`` (how far the two parted over ``health.consistency_window_m``, in standard deviations). See
+and ``along_z`` (how far the two parted over ``health.consistency_window_m``, in standard deviations),
+``pose_sigma_m`` (the pose's standard deviation relative to the map, ``nan`` in tables of earlier
+releases). See
 :mod:`lidar3d.mapping.health` for what each means.
 """
 
@@ -53,11 +55,16 @@ HEALTH_COLUMNS = (
     "odometry_along_travel_m",
     "heading_z",
     "along_z",
+    "pose_sigma_m",
 )
 
-#: The columns of earlier releases' tables, the consistency test's missing: still read (its
-#: measures at their "not measured" defaults), so older run folders can be scored.
-_EARLIER_COLUMNS = HEALTH_COLUMNS[: HEALTH_COLUMNS.index("heading_difference_deg")]
+#: The columns of earlier releases' tables, without the consistency test's, or without the pose
+#: uncertainty: still read (those measures at their "not measured" defaults), so older run
+#: folders can be scored.
+_EARLIER_COLUMNS = (
+    HEALTH_COLUMNS[: HEALTH_COLUMNS.index("heading_difference_deg")],
+    HEALTH_COLUMNS[: HEALTH_COLUMNS.index("pose_sigma_m")],
+)
 _NOT_MEASURED = {
     "heading_difference_deg": "0",
     "odometry_yaw_sigma_deg": "inf",
@@ -67,6 +74,7 @@ _NOT_MEASURED = {
     "odometry_along_travel_m": "0",
     "heading_z": "0",
     "along_z": "0",
+    "pose_sigma_m": "nan",
 }
 
 
@@ -110,6 +118,7 @@ def write_health_csv(path: str | Path, scan_indices: Sequence[int] | np.ndarray,
                 _number(m.odometry_along_travel_m),
                 _number(h.heading_z),
                 _number(h.along_z),
+                _number(m.pose_sigma_m),
             )
         )
     write_text_atomic(path, buffer.getvalue())
@@ -145,6 +154,7 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         along_difference_m=float(row["along_difference_m"]),
         odometry_along_sigma_m=float(row["odometry_along_sigma_m"]),
         odometry_along_travel_m=float(row["odometry_along_travel_m"]),
+        pose_sigma_m=float(row["pose_sigma_m"]),
     )
     health = ScanHealth(
         stamp_ns=int(row["stamp_ns"]),
@@ -162,11 +172,11 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
 def read_health_csv(path: str | Path) -> tuple[np.ndarray, tuple[ScanHealth, ...]]:
     """The (N,) input scan numbers and the health of every row of a ``health.csv``.
 
-    A table of an earlier release (:data:`HEALTH_COLUMNS` without the consistency test's columns)
-    is read too, those measures at their "not measured" values.
+    A table of an earlier release (:data:`HEALTH_COLUMNS` without the consistency test's columns,
+    or without ``pose_sigma_m``) is read too, those measures at their "not measured" values.
 
     Raises:
-        HealthFileError: the file is missing, its header is neither :data:`HEALTH_COLUMNS` nor the
+        HealthFileError: the file is missing, its header is neither :data:`HEALTH_COLUMNS` nor an
             earlier one, or a row is malformed (one line naming the file and the line).
     """
     path = Path(path)
@@ -177,7 +187,7 @@ def read_health_csv(path: str | Path) -> tuple[np.ndarray, tuple[ScanHealth, ...
     reader = csv.reader(io.StringIO(text))
     header = next(reader, None)
     columns = tuple(header) if header is not None else ()
-    if columns not in (HEALTH_COLUMNS, _EARLIER_COLUMNS):
+    if columns != HEALTH_COLUMNS and columns not in _EARLIER_COLUMNS:
         raise HealthFileError(f"{path}: not a health table (the first line must be {','.join(HEALTH_COLUMNS)})")
     scans: list[int] = []
     health: list[ScanHealth] = []

@@ -397,7 +397,7 @@ class PoseGraph:
             try:
                 self._isam_update(_factor_graph([factor]), _values({}))
             except RuntimeError as err:
-                log.warning("pose graph: loop %d -> %d dropped: %s", edge.target, edge.source, err)
+                log.warning("pose graph: loop %d -> %d dropped: %s", edge.target, edge.source, _first_line(err))
                 dropped.append((edge.target, edge.source))
                 self.edges = [e for e in self.edges if e is not edge]
                 self.dropped_loops.append((edge.target, edge.source))

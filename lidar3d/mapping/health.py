@@ -20,13 +20,17 @@ A scan *observes* its pose when it was registered, ``sigma <= observed_sigma_m``
 agrees within ``max_disagreement_m``; it observes *every direction* when, besides, its registration
 took no direction from the prior (``prior_axes == 0``: on no axis did the motion prior decide more
 than the scan, i.e. the scan removed at least half of the prior's variance on every axis; that
-direction is dead-reckoned however small its sigma). :class:`HealthMonitor` keeps a small state, two distances
-travelled since the estimate was last fully observed: ``dead_reckoned_m`` over scans that did not
-observe every direction and ``blind_m`` over scans that did not observe their pose; each such scan
-adds its step length, ``degraded_after_m`` of fully observed travel in a row clears both. The flag
-is ``degraded`` from ``dead_reckoned_m >= degraded_after_m`` (dead-reckoned along some direction for
-a while) and ``lost`` from ``blind_m >= lost_after_m`` (not observed for long), so a single noisy
-scan never flags and a standstill (no travel) never accumulates.
+direction is dead-reckoned however small its sigma). A fourth measure, the **pose uncertainty**
+``pose_sigma_m``, is what the scans and the vehicle model know together about the pose relative
+to the map (:class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`, a Kalman filter fed with
+each registration's information; the largest translation sigma plus ``lever_m`` times the largest
+rotation one). The flag is ``degraded`` from ``pose_sigma_m > degraded_sigma_m`` (0.1 m: a
+three-sigma error reaches 0.3 m, the tolerance of issue 15). :class:`HealthMonitor` keeps two
+distances travelled since the estimate was last fully observed: ``dead_reckoned_m`` over scans
+that did not observe every direction (reported) and ``blind_m`` over scans that did not observe
+their pose; each such scan adds its step length, ``clear_after_m`` of fully observed travel in a
+row clears both. The flag is ``lost`` from ``blind_m >= lost_after_m`` (not observed for long), so
+a single noisy scan never flags and a standstill (no travel) never accumulates.
 
 **Consistency with the odometry over a window.** A scan-to-submap registration that is well
 observed on every direction can still be biased: the submap is built from the trajectory's own
@@ -81,8 +85,8 @@ __all__ = [
 class HealthFlag(str, enum.Enum):
     """How far a scan's pose can be trusted."""
 
-    OK = "ok"  # observed, or dead-reckoned over less than health.degraded_after_m
-    DEGRADED = "degraded"  # dead-reckoned along some direction for health.degraded_after_m or more
+    OK = "ok"  # the pose known to health.degraded_sigma_m and consistent with the odometry
+    DEGRADED = "degraded"  # pose more uncertain than health.degraded_sigma_m, or inconsistent
     LOST = "lost"  # pose not observed for health.lost_after_m or more: it may be metres wrong
 
 
@@ -115,6 +119,10 @@ class ScanMeasures:
             direction from its rows, metres (inf: not observed, or no travel).
         odometry_along_travel_m: how far the odometry step moved from its guess along that
             direction, metres.
+        pose_sigma_m: standard deviation of the pose relative to the map
+            (:class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`): the largest translation
+            sigma plus ``lever_m`` times the largest rotation sigma, metres (NaN: not measured,
+            a table of an earlier release).
     """
 
     registered: bool
@@ -132,6 +140,7 @@ class ScanMeasures:
     along_difference_m: float = 0.0
     odometry_along_sigma_m: float = np.inf
     odometry_along_travel_m: float = 0.0
+    pose_sigma_m: float = float("nan")
 
     def observes_pose(self, config: HealthConfig) -> bool:
         """The scan observed its pose: registered, observable enough and consistent with the odometry."""
@@ -211,7 +220,9 @@ def _prior_axes(track: TrackResult) -> int:
     return int(np.count_nonzero(observed_share(registration.information, track.prior.information) < 0.5))
 
 
-def scan_measures(track: TrackResult, previous: PosedScan | None, config: HealthConfig) -> ScanMeasures:
+def scan_measures(
+    track: TrackResult, previous: PosedScan | None, config: HealthConfig, pose_covariance: np.ndarray | None = None
+) -> ScanMeasures:
     """The health measures of the scan ``track`` concluded on.
 
     This is the only reader of :class:`TrackResult` here: a field the registration adds (its
@@ -222,16 +233,24 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         previous: the previous scan, with its poses as the tracker started from them (corrected by
             any loop closure since); None for the first scan.
         config: the ``[health]`` section (``residual_sigma_m``, ``lever_m``).
+        pose_covariance: (6,6) covariance of the pose in the tangent ``[w, v]`` (rad, m), from
+            :class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`; None: not measured.
     """
     registration = track.registration
     registered = registration is not None
-    if registration is None or not np.isfinite(registration.min_eigenvalue):
+    # an eigenvalue within rounding of zero (the sum over the rows of unit-normal products) is a
+    # direction the rows do not see at all: its sigma is infinite, not 1e148 m
+    if (
+        registration is None
+        or not np.isfinite(registration.min_eigenvalue)
+        or registration.min_eigenvalue <= max(registration.n_rows, 1) * np.finfo(float).eps
+    ):
         weakest_sigma_m = np.inf
     else:
         sigma_m = registration.residual_sigma_m
         if not np.isfinite(sigma_m):
             sigma_m = config.residual_sigma_m
-        weakest_sigma_m = sigma_m / np.sqrt(max(registration.min_eigenvalue, 1e-300))
+        weakest_sigma_m = sigma_m / np.sqrt(registration.min_eigenvalue)
     heading_difference_rad = along_difference_m = along_travel_m = 0.0
     along_sigma_m = np.inf
     if previous is None:
@@ -269,7 +288,16 @@ def scan_measures(track: TrackResult, previous: PosedScan | None, config: Health
         along_difference_m=along_difference_m,
         odometry_along_sigma_m=along_sigma_m,
         odometry_along_travel_m=along_travel_m,
+        pose_sigma_m=float("nan") if pose_covariance is None else _sigma_m(pose_covariance, config.lever_m),
     )
+
+
+def _sigma_m(covariance: np.ndarray, lever_m: float) -> float:
+    """The largest translation standard deviation plus ``lever_m`` times the largest rotation one
+    of a (6,6) covariance over ``[w, v]``, metres."""
+    rotation_var = float(np.linalg.eigvalsh(covariance[:3, :3]).max())
+    translation_var = float(np.linalg.eigvalsh(covariance[3:, 3:]).max())
+    return float(np.sqrt(max(translation_var, 0.0)) + lever_m * np.sqrt(max(rotation_var, 0.0)))
 
 
 def _beyond_shortfall(difference: float, shortfall: float) -> float:
@@ -358,7 +386,7 @@ class HealthMonitor:
         observed = measures.observes_every_direction(config)
         if observed:
             self._observed_m += measures.step_m
-            if self._observed_m >= config.degraded_after_m:
+            if self._observed_m >= config.clear_after_m:
                 self._dead_reckoned_m = self._blind_m = 0.0
         else:
             self._observed_m = 0.0
@@ -369,7 +397,7 @@ class HealthMonitor:
         inconsistent = max(heading_z, along_z) > config.max_consistency_z
         if self._blind_m >= config.lost_after_m:
             flag = HealthFlag.LOST
-        elif self._dead_reckoned_m >= config.degraded_after_m or inconsistent:
+        elif measures.pose_sigma_m > config.degraded_sigma_m or inconsistent:
             flag = HealthFlag.DEGRADED
         else:
             flag = HealthFlag.OK

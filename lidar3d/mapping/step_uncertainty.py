@@ -33,7 +33,7 @@ import numpy as np
 from lidar3d.config import MotionConfig
 from lidar3d.mapping.registration import observed_share
 
-__all__ = ["StepUncertainty", "tangent_information"]
+__all__ = ["StepUncertainty", "acceleration_sigmas", "tangent_information"]
 
 _UNOBSERVED_SHARE = 0.5  # an axis whose variance the scan removed less of came from the prior
 
@@ -52,21 +52,17 @@ def tangent_information(information_x: np.ndarray, T_world_lidar: np.ndarray) ->
     return J.T @ information_x @ J
 
 
+def acceleration_sigmas(config: MotionConfig) -> np.ndarray:
+    """(6,) the vehicle model's acceleration bounds, tangent order ``[w, v]`` (rad/s^2, then m/s^2;
+    the lidar's x taken as the direction of travel)."""
+    tilt = config.tilt_accel_rad_s2
+    rotation = [tilt, tilt, config.yaw_accel_rad_s2]
+    return np.array([*rotation, config.forward_accel_mps2, config.lateral_accel_mps2, config.vertical_accel_mps2])
+
+
 def _vehicle_sigmas(config: MotionConfig, dt_s: float) -> np.ndarray:
-    """(6,) per-scan step sigmas the bounded accelerations allow, tangent order ``[w, v]`` (the
-    lidar's x taken as the direction of travel)."""
-    dt2 = dt_s * dt_s
-    tilt = config.tilt_accel_rad_s2 * dt2
-    return np.array(
-        [
-            tilt,
-            tilt,
-            config.yaw_accel_rad_s2 * dt2,
-            config.forward_accel_mps2 * dt2,
-            config.lateral_accel_mps2 * dt2,
-            config.vertical_accel_mps2 * dt2,
-        ]
-    )
+    """(6,) per-scan step sigmas the bounded accelerations allow, tangent order ``[w, v]``."""
+    return acceleration_sigmas(config) * dt_s * dt_s
 
 
 class StepUncertainty:
