@@ -22,7 +22,10 @@ exactly once, then cleared (DESIGN.md: iSAM2 gets only the new factors and value
 (LIO-SAM runs 5 extra updates after a loop or GPS factor). If GTSAM raises (e.g. an indeterminant
 linear system), the error is logged, the new loop factors of that batch are retried one at a time
 on a graph rebuilt from the factors already accepted, and every loop factor that still fails is
-dropped; odometry is never dropped.
+dropped; odometry is never dropped. iSAM2's incremental factorisation can find a well-posed graph
+indeterminate after many relinearisations (`long` seed 1, at keyframe 459 of an odometry-only
+update, with Cholesky; the solver factorises with QR now): the rebuilt solver factorises every
+factor from scratch.
 
 **GNSS position factors.** :func:`fuse_positions` solves a separate batch graph after a run: the
 final keyframe chain as odometry factors plus ``GPSFactor`` s (position-only, on the keyframe's
@@ -368,10 +371,7 @@ class PoseGraph:
         graph = _factor_graph(factor for factor, _ in factors)
         try:
             self._isam_update(graph, _values(values))
-        except RuntimeError as err:
-            # iSAM2's incremental factorisation can find a well-posed graph indeterminate after many
-            # relinearisations (`long` seed 1, at keyframe 459 of an odometry-only update): a
-            # fresh solver over every factor is factorised from scratch.
+        except RuntimeError as err:  # a well-posed graph found indeterminate: see the module docstring
             log.warning("pose graph: iSAM2 update failed (%s); rebuilding the solver", _first_line(err))
             if not has_loop:
                 snapshot = self._estimates_after_failure()

@@ -33,7 +33,7 @@ needs: the odometry, the motion model, the latest pose and the sweep waiting to 
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -164,19 +164,9 @@ class Tracker:
         self._sweep_period_s = config.sensor.resolved_model.sweep_period_s
         self._mapping = config.mapping
         self._vehicle = config.motion
-        odo = config.odometry
-        self._odometry = ScanToScanOdometry(
-            n_rings=config.sensor.resolved_model.n_rings,
-            max_iterations=odo.max_iterations,
-            rematch_every=odo.rematch_every,
-            min_rows=odo.min_rows,
-            degeneracy_threshold=odo.degeneracy_threshold,
-            search_radius_m=odo.search_radius_m,
-            min_previous_edges=odo.min_previous_edges,
-            min_previous_planes=odo.min_previous_planes,
-        )
-        self._fuse_heading = odo.fuse_heading
-        self._heading_shortfall = odo.heading_shortfall
+        self._odometry = _scan_to_scan_odometry(config)
+        self._fuse_heading = config.odometry.fuse_heading
+        self._heading_shortfall = config.odometry.heading_shortfall
         self._submap = submap
         self._motion = MotionModel()
         self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
@@ -264,27 +254,14 @@ class Tracker:
     def apply_correction(self, correction: np.ndarray) -> None:
         """A loop closure moved the world under the latest scan: left-multiply its pose (and the
         unsettled sweep's, the same scan) by the (4,4) world-frame ``correction``."""
-        if self._latest is not None:
-            latest = self._latest
-            self._latest = _Latest(
-                latest.stamp_ns,
-                correction @ latest.T_world_lidar,
-                latest.T_world_odom,
-                latest.reference_ns,
-                correction @ latest.T_world_reference,
+        if (latest := self._latest) is not None:
+            self._latest = replace(
+                latest,
+                T_world_lidar=correction @ latest.T_world_lidar,
+                T_world_reference=correction @ latest.T_world_reference,
             )
         if self._unsettled is not None:
-            u = self._unsettled
-            self._unsettled = _Unsettled(
-                u.scan,
-                u.sweep,
-                correction @ u.T_world_lidar,
-                u.deskew_twist,
-                u.registered,
-                u.reference_offset_s,
-                u.reference_twist,
-                u.reference_information,
-            )
+            self._unsettled = replace(self._unsettled, T_world_lidar=correction @ self._unsettled.T_world_lidar)
 
     def _register(
         self,
@@ -375,6 +352,21 @@ class Tracker:
         if refined.iterations == 0 or refined.degenerate_axes:
             return kept
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
+
+
+def _scan_to_scan_odometry(config: Config) -> ScanToScanOdometry:
+    """The scan-to-scan odometry of the ``[odometry]`` section for the configured sensor."""
+    odo = config.odometry
+    return ScanToScanOdometry(
+        n_rings=config.sensor.resolved_model.n_rings,
+        max_iterations=odo.max_iterations,
+        rematch_every=odo.rematch_every,
+        min_rows=odo.min_rows,
+        degeneracy_threshold=odo.degeneracy_threshold,
+        search_radius_m=odo.search_radius_m,
+        min_previous_edges=odo.min_previous_edges,
+        min_previous_planes=odo.min_previous_planes,
+    )
 
 
 def _odometry_heading(T_world_guess: np.ndarray, step: OdometryStep, shortfall: float) -> PosePrior | None:
