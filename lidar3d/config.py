@@ -366,7 +366,9 @@ class MappingConfig:
     rematch_every: int = _key(
         2, _ITERATIONS, "correspondences recomputed every n iterations (LeGO-LOAM: 1; 2 costs 25 % less)"
     )
-    min_rows: int = _key(50, _closed(6, 1_000_000), "fewer residual rows: registration fails; keyframe surface minimum")
+    min_rows: int = _key(
+        120, _closed(6, 1_000_000), "fewer rows: not registered (LIO-SAM: 10 edge, 100 flat points); keyframe minimum"
+    )
     converge_rotation_deg: float = _key(0.05, _closed(0.0, 10.0, "deg"), "converged below this rotation step ...")
     converge_translation_m: float = _key(0.0005, _closed(0.0, 1.0, "m"), "... and this translation step")
     # Submap planes: LeGO-LOAM fits 5 neighbours within 1 m; on a 16-beam scan those lie on one
