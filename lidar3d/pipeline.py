@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from lidar3d.config import Config, MappingConfig
+from lidar3d.config import Config
 from lidar3d.features.frontend import STAGES as FRONT_END_STAGES
 from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
@@ -138,7 +138,7 @@ class SlamPipeline:
     def __init__(self, config: Config, piece_store: PieceStore | None = None, *, map_in_process: bool = False) -> None:
         self.config = config
         mp = config.mapping
-        self.submap = _submap(mp)
+        self.submap = Submap.of_config(mp)
         self.tracker = Tracker(config, self.submap)
         self.keyframe_selector = KeyframeSelector(
             distance_m=mp.keyframe_distance_m, angle_deg=mp.keyframe_angle_deg, min_surface_points=mp.min_rows
@@ -321,21 +321,6 @@ class SlamPipeline:
         )
         self._estimates = [dataclasses.replace(e, T_world_lidar=T) for e, T in zip(self._estimates, corrected)]
         self.keyframe_selector.anchor(update.poses[-1])
-
-
-def _submap(mp: MappingConfig) -> Submap:
-    """The keyframe submap of the ``[mapping]`` section."""
-    return Submap(
-        radius_m=mp.submap_radius_m,
-        max_keyframes=mp.submap_max_keyframes,
-        recent=mp.submap_recent_keyframes,
-        corner_voxel_m=mp.corner_voxel_m,
-        surf_voxel_m=mp.surf_voxel_m,
-        cache_size=mp.submap_cache_keyframes,
-        rebuild_every_keyframes=mp.submap_rebuild_every_keyframes,
-        plane_neighbours=mp.plane_neighbours,
-        plane_max_distance_m=mp.plane_max_distance_m,
-    )
 
 
 def _dense_map(

@@ -24,25 +24,12 @@ def prepared():
     return [prepare_scan(s.scan, config) for s in simulation.scans()], simulation.ground_truth
 
 
-def _submap(config: Config) -> Submap:
-    mp = config.mapping
-    return Submap(
-        radius_m=mp.submap_radius_m,
-        max_keyframes=mp.submap_max_keyframes,
-        recent=mp.submap_recent_keyframes,
-        corner_voxel_m=mp.corner_voxel_m,
-        surf_voxel_m=mp.surf_voxel_m,
-        plane_neighbours=mp.plane_neighbours,
-        plane_max_distance_m=mp.plane_max_distance_m,
-    )
-
-
 def test_track_records_and_settling(prepared):
     """Each result is a frozen record; from the second scan on it settles the previous sweep; the
     first scan sits at the origin and a registration runs once the submap has a keyframe."""
     scans, truth = prepared
     config = Config()
-    submap = _submap(config)
+    submap = Submap.of_config(config.mapping)
     tracker = Tracker(config, submap)
     results = []
     for k, p in enumerate(scans):
@@ -73,7 +60,7 @@ def test_apply_correction_moves_where_tracking_continues(prepared):
     """A correction applied between two scans moves the next pose by the same rigid motion."""
     scans, _ = prepared
     config = Config()
-    plain, moved = (Tracker(config, _submap(config)) for _ in range(2))
+    plain, moved = (Tracker(config, Submap.of_config(config.mapping)) for _ in range(2))
     for p in scans[:3]:
         plain.track(p)
         moved.track(p)

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from lidar3d.config import MappingConfig
 from lidar3d.mapping.map_pieces import MapAnchor
 from lidar3d.mapping.registration import LineMap, PlaneMap
 from lidar3d.mapping.se3 import invert, transform_points
@@ -120,6 +121,21 @@ class Submap:
         self._poses: list[np.ndarray] = []
         self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._target: SubmapTarget | None = None
+
+    @classmethod
+    def of_config(cls, mp: MappingConfig) -> Submap:
+        """The submap of the ``[mapping]`` section."""
+        return cls(
+            radius_m=mp.submap_radius_m,
+            max_keyframes=mp.submap_max_keyframes,
+            recent=mp.submap_recent_keyframes,
+            corner_voxel_m=mp.corner_voxel_m,
+            surf_voxel_m=mp.surf_voxel_m,
+            cache_size=mp.submap_cache_keyframes,
+            rebuild_every_keyframes=mp.submap_rebuild_every_keyframes,
+            plane_neighbours=mp.plane_neighbours,
+            plane_max_distance_m=mp.plane_max_distance_m,
+        )
 
     def __len__(self) -> int:
         return len(self.keyframes)
