@@ -43,7 +43,7 @@ from lidar3d.config import MotionConfig
 from lidar3d.mapping.registration import PosePrior
 from lidar3d.mapping.se3 import exp_se3
 
-__all__ = ["MotionModel", "nominal_step_information"]
+__all__ = ["MotionModel", "acceleration_sigmas", "nominal_step_information"]
 
 
 class MotionModel:
@@ -206,18 +206,22 @@ def nominal_step_information(config: MotionConfig, dt_s: float) -> np.ndarray:
     return _information(_step_sigma(config, dt_s, vehicle=False), np.eye(3), config)
 
 
+def acceleration_sigmas(config: MotionConfig) -> np.ndarray:
+    """(6,) the vehicle model's acceleration bounds: along the direction of travel, sideways, up
+    (m/s^2), then roll, pitch, yaw (rad/s^2)."""
+    tilt = config.tilt_accel_rad_s2
+    translation = [config.forward_accel_mps2, config.lateral_accel_mps2, config.vertical_accel_mps2]
+    return np.array([*translation, tilt, tilt, config.yaw_accel_rad_s2])
+
+
 def _step_sigma(config: MotionConfig, dt_s: float, vehicle: bool) -> np.ndarray:
     """(6,) sigmas of one step of ``dt_s`` under bounded accelerations: along the body basis
     (direction of travel, sideways, up) when ``vehicle``, the forward value on every axis
     otherwise, then tilt, tilt, yaw."""
-    dt2 = dt_s * dt_s
-    forward = config.forward_accel_mps2 * dt2
-    if vehicle:
-        sigma_t = np.array([forward, config.lateral_accel_mps2 * dt2, config.vertical_accel_mps2 * dt2])
-    else:
-        sigma_t = np.full(3, forward)
-    tilt = config.tilt_accel_rad_s2 * dt2
-    return np.r_[sigma_t, tilt, tilt, config.yaw_accel_rad_s2 * dt2]
+    sigma = acceleration_sigmas(config) * dt_s * dt_s
+    if not vehicle:
+        sigma[1:3] = sigma[0]
+    return sigma
 
 
 def _information(sigma: np.ndarray, axes_world: np.ndarray, config: MotionConfig) -> np.ndarray:

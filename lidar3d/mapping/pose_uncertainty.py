@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 
 from lidar3d.config import MotionConfig
-from lidar3d.mapping.step_uncertainty import acceleration_sigmas, tangent_information
+from lidar3d.mapping.step_uncertainty import tangent_acceleration_sigmas, tangent_information
 
 __all__ = ["PoseUncertainty"]
 
@@ -44,7 +44,7 @@ class PoseUncertainty:
     """
 
     def __init__(self, config: MotionConfig) -> None:
-        self._acceleration_var = acceleration_sigmas(config) ** 2
+        self._acceleration_var = tangent_acceleration_sigmas(config) ** 2
         self._covariance = np.zeros((12, 12))  # [pose error (w, v), its rate]
 
     def add(self, T_world_lidar: np.ndarray, dt_s: float, information_x: np.ndarray | None) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 LeGO-LOAM mapOptmization.cpp 1093-1336: corners match lines and surfaces match planes fitted to
 5 nearby submap points (see :class:`~lidar3d.mapping.registration.LineMap` and
-:class:`~lidar3d.mapping.registration.PlaneMap`); at least 50 rows, Gauss-Newton. LeGO-LOAM calls a
+:class:`~lidar3d.mapping.registration.PlaneMap`); at least ``mapping.min_rows`` rows (120: LIO-SAM
+maps a scan with more than 10 edge and 100 flat points), Gauss-Newton. LeGO-LOAM calls a
 direction degenerate below a fixed eigenvalue of ``J^T J`` (100, a count of unit-normal rows);
 here it is one the rows know less well than the vehicle model does over the scan interval
 (:func:`~lidar3d.mapping.registration.unobserved_directions`).

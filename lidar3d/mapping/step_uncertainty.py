@@ -31,9 +31,10 @@ from __future__ import annotations
 import numpy as np
 
 from lidar3d.config import MotionConfig
+from lidar3d.mapping.motion_model import acceleration_sigmas
 from lidar3d.mapping.registration import observed_share
 
-__all__ = ["StepUncertainty", "acceleration_sigmas", "tangent_information"]
+__all__ = ["StepUncertainty", "tangent_acceleration_sigmas", "tangent_information"]
 
 _UNOBSERVED_SHARE = 0.5  # an axis whose variance the scan removed less of came from the prior
 
@@ -52,17 +53,16 @@ def tangent_information(information_x: np.ndarray, T_world_lidar: np.ndarray) ->
     return J.T @ information_x @ J
 
 
-def acceleration_sigmas(config: MotionConfig) -> np.ndarray:
-    """(6,) the vehicle model's acceleration bounds, tangent order ``[w, v]`` (rad/s^2, then m/s^2;
-    the lidar's x taken as the direction of travel)."""
-    tilt = config.tilt_accel_rad_s2
-    rotation = [tilt, tilt, config.yaw_accel_rad_s2]
-    return np.array([*rotation, config.forward_accel_mps2, config.lateral_accel_mps2, config.vertical_accel_mps2])
+def tangent_acceleration_sigmas(config: MotionConfig) -> np.ndarray:
+    """(6,) the vehicle model's acceleration bounds (:func:`~lidar3d.mapping.motion_model.acceleration_sigmas`)
+    in tangent order ``[w, v]`` (rad/s^2, then m/s^2; the lidar's x taken as the direction of travel)."""
+    sigmas = acceleration_sigmas(config)
+    return np.r_[sigmas[3:], sigmas[:3]]
 
 
 def _vehicle_sigmas(config: MotionConfig, dt_s: float) -> np.ndarray:
     """(6,) per-scan step sigmas the bounded accelerations allow, tangent order ``[w, v]``."""
-    return acceleration_sigmas(config) * dt_s * dt_s
+    return tangent_acceleration_sigmas(config) * dt_s * dt_s
 
 
 class StepUncertainty:
