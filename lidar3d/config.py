@@ -636,6 +636,10 @@ class MotionConfig:
     vertical_accel_mps2: float = _key(1.0, _positive(100.0, "m/s^2"), "vertical velocity change (suspension)")
     yaw_accel_rad_s2: float = _key(2.0, _positive(1000.0, "rad/s^2"), "yaw rate change (steering into a turn)")
     tilt_accel_rad_s2: float = _key(0.5, _positive(1000.0, "rad/s^2"), "roll and pitch rate change (vibration)")
+    lever_m: float = _key(0.0, _closed(-100.0, 100.0, "m"), "the sensor's distance ahead of the rear axle, if known")
+    lever_sigma_m: float = _key(
+        0.5, _closed(0.0, 100.0, "m"), "its uncertainty: the sideways sigma grows by this times the yaw rate"
+    )
     min_sigma_m: float = _key(0.002, _positive(1.0, "m"), "translation sigma of one step is at least this")
     min_sigma_deg: float = _key(0.02, _positive(10.0, "deg"), "rotation sigma of one step is at least this")
     cold_start_sigma_m: float = _key(1.0, _positive(1000.0, "m"), "before the model is established: guess sigma ...")

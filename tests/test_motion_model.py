@@ -155,8 +155,40 @@ def test_vehicle_prior_is_tight_sideways_and_loose_along_travel():
     along = FORWARD @ covariance @ FORWARD
     side = np.array([-FORWARD[1], FORWARD[0], 0.0])
     assert np.sqrt(along) == pytest.approx(MotionConfig().forward_accel_mps2 * 0.01, rel=1e-4)
-    assert np.sqrt(side @ covariance @ side) == pytest.approx(MotionConfig().lateral_accel_mps2 * 0.01, rel=1e-4)
+    config = MotionConfig()  # _drive turns at 0.02 rad/s: the lever's part is 0.5 m x 0.02 rad/s x 0.1 s
+    expected = np.hypot(config.lateral_accel_mps2 * 0.01, config.lever_sigma_m * 0.02 * 0.1)
+    assert np.sqrt(side @ covariance @ side) == pytest.approx(expected, rel=1e-4)
     np.testing.assert_allclose(prior.T_target_source[:3, 3], 0.1 * model.vehicle_twist()[:3], atol=1e-3)
+
+
+def _sideways(model, prior):
+    side = np.cross([0.0, 0.0, 1.0], model.forward_axis)
+    side /= np.linalg.norm(side)
+    return side, float(np.sqrt(side @ np.linalg.inv(prior.information[:3, :3]) @ side))
+
+
+def test_in_a_turn_the_prior_leaves_the_sideways_motion_to_the_scan_by_the_lever_uncertainty():
+    """A sensor ahead of the rear axle moves sideways at lever x yaw rate; the prior's sideways
+    sigma grows by the lever's uncertainty times the yaw rate (0.5 m x 0.5 rad/s x 0.1 s)."""
+    model = MotionModel()
+    _drive(model, 30, np.random.default_rng(2), lateral_noise=0.0)
+    config = MotionConfig()
+    model.update(np.r_[6.0 * FORWARD, 0.0, 0.0, 0.5], well_constrained=True)
+    _, sigma = _sideways(model, model.prior(np.eye(4), 0.1, config))
+    assert sigma == pytest.approx(np.hypot(config.lateral_accel_mps2 * 0.01, 0.5 * 0.5 * 0.1), rel=1e-3)
+    model.update(np.r_[6.0 * FORWARD, 0.0, 0.0, 0.0], well_constrained=True)
+    _, straight = _sideways(model, model.prior(np.eye(4), 0.1, config))
+    assert straight == pytest.approx(config.lateral_accel_mps2 * 0.01, rel=1e-3)
+
+
+def test_a_known_lever_carries_its_sideways_velocity_in_a_turn():
+    model = MotionModel(lever_m=0.35)
+    _drive(model, 30, np.random.default_rng(2), lateral_noise=0.0)
+    model.update(np.r_[6.0 * FORWARD, 0.0, 0.0, 0.5], well_constrained=False)
+    side, _ = _sideways(model, model.prior(np.eye(4), 0.1, MotionConfig()))
+    twist = model.vehicle_twist()
+    assert twist[:3] @ side == pytest.approx(0.35 * 0.5, rel=1e-3)  # left turn: the nose swings left
+    assert twist[:3] @ model.forward_axis == pytest.approx(6.0, rel=1e-3)
 
 
 def test_unobserved_directions_compare_the_rows_with_the_reference_in_its_own_units():

@@ -168,7 +168,7 @@ class Tracker:
         self._fuse_heading = config.odometry.fuse_heading
         self._heading_shortfall = config.odometry.heading_shortfall
         self._submap = submap
-        self._motion = MotionModel()
+        self._motion = MotionModel(lever_m=config.motion.lever_m)
         self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
         self._latest: _Latest | None = None
         self._motion_known = False  # the motion model has learned a twist
