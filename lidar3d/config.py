@@ -640,6 +640,9 @@ class MotionConfig:
     lever_sigma_m: float = _key(
         0.5, _closed(0.0, 100.0, "m"), "its uncertainty: the sideways sigma grows by this times the yaw rate"
     )
+    twist_change_sigmas: float = _key(
+        3.0, _positive(1000.0), "a learned twist changes per scan by at most this many acceleration sigmas x dt"
+    )
     min_sigma_m: float = _key(0.002, _positive(1.0, "m"), "translation sigma of one step is at least this")
     min_sigma_deg: float = _key(0.02, _positive(10.0, "deg"), "rotation sigma of one step is at least this")
     cold_start_sigma_m: float = _key(1.0, _positive(1000.0, "m"), "before the model is established: guess sigma ...")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from lidar3d.config import MotionConfig
-from lidar3d.mapping.motion_model import MotionModel, nominal_step_information
+from lidar3d.mapping.motion_model import MotionModel, acceleration_sigmas, nominal_step_information
 from lidar3d.mapping.registration import PlaneMap, PosePrior, observed_share, solve_pose, unobserved_directions
 from lidar3d.mapping.se3 import pose_from_xyz_rpy, xyz_rpy_from_pose
 
@@ -189,6 +189,26 @@ def test_a_known_lever_carries_its_sideways_velocity_in_a_turn():
     twist = model.vehicle_twist()
     assert twist[:3] @ side == pytest.approx(0.35 * 0.5, rel=1e-3)  # left turn: the nose swings left
     assert twist[:3] @ model.forward_axis == pytest.approx(6.0, rel=1e-3)
+
+
+def test_a_twist_jump_the_vehicle_cannot_make_is_clipped_to_its_acceleration_bounds():
+    bound = 3.0 * acceleration_sigmas(MotionConfig())  # 6 m/s^2 along travel, 6 rad/s^2 in yaw
+    model = MotionModel(change_bound=bound)
+    _drive(model, 30, np.random.default_rng(2), lateral_noise=0.0)
+    steady = model.twist.copy()
+    model.update(np.r_[6.0 * FORWARD, 0.0, 0.0, 0.02 + 0.61], well_constrained=True, dt_s=0.1)  # +35 deg/s
+    assert model.twist[5] == pytest.approx(0.02 + 0.6)  # 6 rad/s^2 x 0.1 s
+    model.update(steady, well_constrained=True, dt_s=0.1)
+    model.update(np.r_[6.4 * FORWARD, 0.0, 0.0, 0.05], well_constrained=True, dt_s=0.1)  # within the bounds
+    np.testing.assert_allclose(model.twist, np.r_[6.4 * FORWARD, 0.0, 0.0, 0.05], atol=1e-12)
+    model.update(np.r_[9.0 * FORWARD, 0.0, 0.0, 0.05], well_constrained=True, dt_s=0.1)  # +2.6 m/s in 0.1 s
+    assert model.twist[:3] @ model.forward_axis == pytest.approx(7.0, abs=1e-6)
+
+
+def test_a_cold_start_takes_the_measured_twist_whole():
+    model = MotionModel(change_bound=3.0 * acceleration_sigmas(MotionConfig()))
+    model.update(np.r_[8.0, 0.0, 0.0, 0.0, 0.0, 0.3], well_constrained=True, dt_s=0.1)
+    np.testing.assert_array_equal(model.twist, [8.0, 0.0, 0.0, 0.0, 0.0, 0.3])
 
 
 def test_unobserved_directions_compare_the_rows_with_the_reference_in_its_own_units():

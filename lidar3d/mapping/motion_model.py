@@ -71,6 +71,9 @@ class MotionModel:
         prediction_smoothing: weight of the newest twist in the smoothed prediction (1: none).
         lever_m: the sensor's distance ahead of the rear axle (m): the sideways velocity per
             unit yaw rate of the vehicle twist.
+        change_bound: (6,) once established, a measured twist differs from the last by at most
+            this times the interval (per body axis: m/s^2 along travel, sideways, up, then
+            rad/s^2 about them); None: unbounded.
     """
 
     def __init__(
@@ -83,6 +86,7 @@ class MotionModel:
         yaw_rate_decay: float = 0.9,
         prediction_smoothing: float = 0.5,
         lever_m: float = 0.0,
+        change_bound: np.ndarray | None = None,
     ) -> None:
         self.min_speed_mps = min_speed_mps
         self.min_samples = min_samples
@@ -100,15 +104,28 @@ class MotionModel:
         self._innovation_product = np.zeros(6)
         self._last_innovation: np.ndarray | None = None
         self.lever_m = lever_m
+        self._change_bound = change_bound
 
-    def update(self, twist: np.ndarray, well_constrained: bool, heading_observed: bool = True) -> None:
-        """Take the twist (v m/s, w rad/s, body frame) estimated for the latest scan.
+    @classmethod
+    def of_config(cls, config: MotionConfig) -> MotionModel:
+        """The model of a run's ``[motion]`` section (its lever, its twist-change bound)."""
+        return cls(lever_m=config.lever_m, change_bound=config.twist_change_sigmas * acceleration_sigmas(config))
+
+    def update(
+        self, twist: np.ndarray, well_constrained: bool, heading_observed: bool = True, dt_s: float = 0.0
+    ) -> None:
+        """Take the twist (v m/s, w rad/s, body frame) estimated for the latest scan, ``dt_s``
+        after the previous one.
 
         ``well_constrained``: the registration had no degenerate direction (only such scans
         teach the direction of travel). ``heading_observed``: False when the yaw came mostly
-        from the prior rather than the scan.
+        from the prior rather than the scan. Once the model is established, the change from the
+        last twist is clipped per body axis at ``change_bound * dt_s``: a vehicle cannot change
+        its yaw rate by 35 deg/s within one scan, a registration that jumped can (``long``
+        seed 1: one such jump, carried and decayed over the next 20 scans of a stretch without
+        heading, turned the trajectory by 80 degrees).
         """
-        self.twist = np.asarray(twist, dtype=float).copy()
+        self.twist = self._bounded(np.asarray(twist, dtype=float), dt_s)
         self.last_well_constrained = bool(well_constrained)
         a = self.prediction_smoothing
         self._smoothed = self.twist.copy() if self._smoothed is None else a * self.twist + (1 - a) * self._smoothed
@@ -128,6 +145,17 @@ class MotionModel:
         else:
             self._direction_sum = (1 - self.direction_smoothing) * self._direction_sum + self.direction_smoothing * unit
         self._samples += 1
+
+    def _bounded(self, twist: np.ndarray, dt_s: float) -> np.ndarray:
+        """(6,) ``twist`` with its change from the current one clipped at ``change_bound * dt_s``
+        per body axis (a copy; unclipped before the model is established)."""
+        if self._change_bound is None or not self.established or dt_s <= 0.0:
+            return twist.copy()
+        basis = self._basis()
+        change = np.r_[basis.T @ (twist[:3] - self.twist[:3]), basis.T @ (twist[3:] - self.twist[3:])]
+        limit = self._change_bound * dt_s
+        clipped = np.clip(change, -limit, limit)
+        return self.twist + np.r_[basis @ clipped[:3], basis @ clipped[3:]]
 
     @property
     def established(self) -> bool:

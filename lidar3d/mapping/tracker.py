@@ -168,15 +168,14 @@ class Tracker:
         self._fuse_heading = config.odometry.fuse_heading
         self._heading_shortfall = config.odometry.heading_shortfall
         self._submap = submap
-        self._motion = MotionModel(lever_m=config.motion.lever_m)
+        self._motion = MotionModel.of_config(config.motion)
         self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
         self._latest: _Latest | None = None
         self._motion_known = False  # the motion model has learned a twist
         self._unsettled: _Unsettled | None = None
 
     def track(self, prepared: PreparedScan) -> TrackResult:
-        """Estimate the pose of a scan with a later stamp than the previous one, and settle the
-        previous sweep."""
+        """Estimate the pose of a scan stamped after the previous one; settle the previous sweep."""
         scan = prepared.scan
         sweep = SweepFeatures.of(prepared)
         clock = StageClock()
@@ -206,6 +205,7 @@ class Tracker:
                 twist_between(previous.T_world_reference, T_world_reference, reference_dt_s),
                 well_constrained=well_constrained,
                 heading_observed=refinement.heading_observed,
+                dt_s=reference_dt_s,
             )
             self._motion_known = True
         # The pose at the reference instant is the stamp's moved with the motion the sweep was
