@@ -4,9 +4,11 @@ The bags are made from the simulator's `loop` scenario driven several times roun
 the scans from the start to the scan whose pose comes back nearest to the first one (a few
 centimetres away), and laps are repeated with their stamps carried on. Each run is a separate
 `lidar3d run` process; the peak is the largest sum of the resident set sizes of that process and
-its children (the prefetch process), sampled every 0.2 s; the peaks of the main process and of its
-children alone are given beside it. ``--bag`` measures given bags instead (e.g. the evaluation
-cache's drives, ``--max-scans`` to cut them). Usage:
+its children (the prefetch and dense-map processes), sampled every 0.2 s; the peaks of the main
+process and of its children alone are given beside it. Beside the summed RSS the tree's PSS
+(proportional set size, ``/proc/PID/smaps_rollup``) is sampled too: a page two processes share (the
+libraries, NumPy's and numba's code) counts once in it, and in each process's RSS. ``--bag``
+measures given bags instead (e.g. the evaluation cache's drives, ``--max-scans`` to cut them). Usage:
 
     .venv/bin/python eval/bench_memory.py [--scans 1000 3000] [--keep DIR]
     .venv/bin/python eval/bench_memory.py --bag eval/cache/figure_eight_s0_full/scans.bag --max-scans 1400
@@ -29,23 +31,25 @@ from lidar3d.sim import Simulation
 from lidar3d.summary import read_summary
 
 
-def _tree_rss_kib(pid: int) -> tuple[int, int]:
-    """Resident set size of ``pid`` and all its descendants, and of ``pid`` alone, in KiB."""
-    total = own = 0
+def _tree_memory_kib(pid: int) -> tuple[int, int, int]:
+    """Resident set size of ``pid`` and all its descendants, of ``pid`` alone, and the tree's
+    proportional set size (shared pages divided among the processes that map them), in KiB."""
+    total = own = proportional = 0
     pending = [pid]
     while pending:
         p = pending.pop()
         try:
-            status = Path(f"/proc/{p}/status").read_text()
+            rollup = Path(f"/proc/{p}/smaps_rollup").read_text()
             children = Path(f"/proc/{p}/task/{p}/children").read_text().split()
         except OSError:
             continue
-        for line in status.splitlines():
-            if line.startswith("VmRSS:"):
-                total += int(line.split()[1])
-                own = int(line.split()[1]) if p == pid else own
+        fields = dict(line.split(":", 1) for line in rollup.splitlines()[1:])
+        rss, pss = int(fields["Rss"].split()[0]), int(fields["Pss"].split()[0])
+        total += rss
+        proportional += pss
+        own = rss if p == pid else own
         pending.extend(int(c) for c in children)
-    return total, own
+    return total, own, proportional
 
 
 def make_bag(path: Path, n_scans: int) -> None:
@@ -69,10 +73,11 @@ def measure(bag: Path, out: Path, extra: list[str] | None = None) -> dict:
     command += extra or []
     t0 = time.perf_counter()
     process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    peak = peak_main = peak_children = 0
+    peak = peak_main = peak_children = peak_pss = 0
     while process.poll() is None:
-        total, own = _tree_rss_kib(process.pid)
+        total, own, proportional = _tree_memory_kib(process.pid)
         peak, peak_main, peak_children = max(peak, total), max(peak_main, own), max(peak_children, total - own)
+        peak_pss = max(peak_pss, proportional)
         time.sleep(0.2)
     wall = time.perf_counter() - t0
     if process.returncode != 0:
@@ -81,6 +86,7 @@ def measure(bag: Path, out: Path, extra: list[str] | None = None) -> dict:
     return {
         "scans": summary.scans,
         "peak_rss_mib": round(peak / 1024, 1),
+        "peak_pss_mib": round(peak_pss / 1024, 1),
         "main_mib": round(peak_main / 1024, 1),
         "children_mib": round(peak_children / 1024, 1),
         "wall_s": round(wall, 1),
@@ -113,13 +119,14 @@ def main() -> None:
             bag.unlink()
             print(f"{n} scans: {rows[-1]}", file=sys.stderr)
     print(
-        "| bag | scans | peak RSS, process tree (MiB) | main (MiB) | prefetch (MiB) | keyframes | loop closures "
-        "| map placed again (s) | map points | wall (s) |"
+        "| bag | scans | peak RSS, process tree (MiB) | peak PSS, process tree (MiB) | main (MiB) "
+        "| children (MiB) | keyframes | loop closures | map placed again (s) | map points | wall (s) |"
     )
-    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
+    print("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for r in rows:
         print(
-            f"| {r['bag']} | {r['scans']} | {r['peak_rss_mib']} | {r['main_mib']} | {r['children_mib']} "
+            f"| {r['bag']} | {r['scans']} | {r['peak_rss_mib']} | {r['peak_pss_mib']} | {r['main_mib']} "
+            f"| {r['children_mib']} "
             f"| {r['keyframes']} | {r['loop_closures']} | {r['map_rebuild_s']} | {r['map_points']} | {r['wall_s']} |"
         )
     if len(rows) >= 2:

@@ -36,7 +36,7 @@ from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.records import LoopCandidate
 from lidar3d.map_process import DenseMapProcess
-from lidar3d.mapping.dense_map import DenseMap
+from lidar3d.mapping.dense_map import DenseMap, MapClouds
 from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
 from lidar3d.mapping.map_pieces import MapPieces, PieceStore
@@ -230,16 +230,18 @@ class SlamPipeline:
         if isinstance(self._map, DenseMapProcess):
             self._map.end()  # the map is final: its process ends
 
-    def result(self, partial: bool = False) -> SlamResult:
+    def result(self, partial: bool = False, *, with_map: bool = True) -> SlamResult:
         """A snapshot of the result so far; changes nothing (``partial`` marks an unfinished run).
 
         Before :meth:`finish`, the last scan is not yet in the map (its deskewing waits for the
         next scan; with dynamic removal the last ``dynamic.window_scans`` wait for the sweeps after
-        them) and an open motion-model stretch is reported up to the last scan.
+        them) and an open motion-model stretch is reported up to the last scan. ``with_map`` False
+        leaves the map's clouds empty: a checkpoint that does not write the map does not fetch it
+        (from the map's process: the whole map pickled, tens of MB, each time).
         """
         keyframes = self.submap.keyframes
         odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)
-        clouds = self._map.clouds()
+        clouds = self._map.clouds() if with_map else MapClouds.empty()
         trajectory = self._trajectory()
         scan_indices = np.array([e.scan_index for e in self._estimates], dtype=np.int64)
         health = tuple(e.health for e in self._estimates)

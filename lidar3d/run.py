@@ -303,7 +303,7 @@ def run_bag(
                 now = time.perf_counter()
                 if now - last_checkpoint >= checkpoint_every_s:
                     with_map = now - last_map_checkpoint >= map_checkpoint_every_s
-                    result = pipeline.result(partial=True)
+                    result = pipeline.result(partial=True, with_map=with_map)
                     summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms)
                     publisher.publish(result, summary, with_map=with_map)
                     last_checkpoint = now

@@ -252,6 +252,22 @@ def test_result_mid_run_changes_nothing(drive, featureless):
     assert len(final.map_points) == len(reference.map_points)
 
 
+def test_a_snapshot_without_the_map_does_not_fetch_it(featureless, monkeypatch):
+    """Checkpoints that do not write the map take their snapshot without it: nothing is asked of the
+    map (in ``lidar3d run`` it lives in another process and comes back pickled whole)."""
+    pipeline, reference = featureless
+    assert len(reference.map_points) > 0
+
+    def refuse():
+        raise AssertionError("the map was fetched")
+
+    monkeypatch.setattr(pipeline._map, "clouds", refuse)
+    snapshot = pipeline.result(partial=True, with_map=False)
+    assert snapshot.map_points.shape == (0, 3) and snapshot.dynamic_points.shape == (0, 3)
+    assert len(snapshot.map_intensity) == 0 and len(snapshot.dynamic_intensity) == 0
+    assert np.array_equal(snapshot.trajectory.T_world_lidar, reference.trajectory.T_world_lidar)
+
+
 def test_featureless_start_recovers_once_features_appear(drive):
     """A bag whose first sweeps are empty: once features come, SLAM works as from a fresh start."""
     sweeps, truth = drive

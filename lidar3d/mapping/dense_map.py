@@ -41,6 +41,11 @@ class MapClouds:
     dynamic_points: np.ndarray
     dynamic_intensity: np.ndarray
 
+    @classmethod
+    def empty(cls) -> MapClouds:
+        """No map (a snapshot taken without it)."""
+        return cls(np.zeros((0, 3)), np.zeros(0), np.zeros((0, 3)), np.zeros(0))
+
 
 class DenseMap:
     """The static map (``map.pcd``) and the removed dynamic points (``dynamic.pcd``), both voxel maps
