@@ -82,11 +82,13 @@ def cache_folder_name(scenario: str, seed: int, duration_s: float | None) -> str
     return f"{scenario}_s{seed}_{span}"
 
 
-def _key(scenario: str, seed: int, duration_s: float | None) -> dict:
+def _key(scenario, seed: int, duration_s: float | None) -> dict:
     from lidar3d import __version__
 
+    named = isinstance(scenario, str)
     return {
-        "scenario": scenario,
+        "scenario": scenario if named else scenario.name,
+        **({} if named else {"definition": repr(scenario)}),
         "seed": int(seed),
         "duration_s": duration_s,
         "bag_format": "ros1",
@@ -124,17 +126,19 @@ def _load(folder: Path, scenario: str, seed: int, duration_s: float | None, gene
 
 
 def ensure_scenario(
-    scenario: str,
+    scenario,
     seed: int = 0,
     duration_s: float | None = None,
     *,
     cache_dir: Path = DEFAULT_CACHE,
     regenerate: bool = False,
 ) -> CachedScenario:
-    """The cached simulation of ``scenario``, generated first if missing or stale."""
+    """The cached simulation of ``scenario`` (a name, or a :class:`lidar3d.sim.scenarios.Scenario`
+    whose whole definition keys the cache), generated first if missing or stale."""
     from lidar3d.sim import Simulation, write_simulation
 
-    folder = Path(cache_dir) / cache_folder_name(scenario, seed, duration_s)
+    name = scenario if isinstance(scenario, str) else scenario.name
+    folder = Path(cache_dir) / cache_folder_name(name, seed, duration_s)
     key = _key(scenario, seed, duration_s)
     key_path = folder / KEY_NAME
     if not regenerate and key_path.is_file():
@@ -143,7 +147,7 @@ def ensure_scenario(
         except json.JSONDecodeError:
             stored = None
         if stored == key and (folder / DENSE_GT_NAME).is_file() and (folder / "metadata.json").is_file():
-            return _load(folder, scenario, seed, duration_s, generated=False)
+            return _load(folder, name, seed, duration_s, generated=False)
     if folder.exists():
         shutil.rmtree(folder)
     tmp = folder.with_name(folder.name + ".partial")
@@ -154,4 +158,4 @@ def ensure_scenario(
     _write_dense_ground_truth(sim, tmp / DENSE_GT_NAME)
     (tmp / KEY_NAME).write_text(json.dumps(key, indent=1) + "\n", encoding="utf-8")
     tmp.rename(folder)  # the folder appears complete or not at all
-    return _load(folder, scenario, seed, duration_s, generated=True)
+    return _load(folder, name, seed, duration_s, generated=True)
