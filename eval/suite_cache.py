@@ -102,7 +102,7 @@ def _write_dense_ground_truth(sim, path: Path) -> None:
     from lidar3d.io.trajectory_io import write_tum
     from lidar3d.records import Trajectory
 
-    first = int(sim.stamps_ns[0])
+    first = int(sim.sweep_start_ns[0])  # the stamps may mark the sweeps' ends
     end = first + int(round(sim.duration_s * 1e9))  # end of the last sweep
     stamps = np.arange(first, end + 1, DENSE_GT_PERIOD_NS, dtype=np.int64)
     write_tum(path, Trajectory(stamps, sim.T_world_lidar_at(stamps)))
