@@ -16,11 +16,17 @@ raised in the child is raised again, unchanged, by the next call that waits; a c
 raises :class:`~lidar3d.errors.Lidar3dError`. The child ignores SIGINT: on Ctrl-C the pipeline's
 ``finish`` still gets every sweep sent into the map. With loop closure the child keeps the map's
 pieces in its own :class:`~lidar3d.io.piece_spill.SpilledPieceStore`.
+
+The map's clouds (tens of MB: 64 MB for 2 million voxels) do not go through the reply queue, which
+pickles a message whole into one buffer on each side (twice the clouds' size more in each
+process, at the end of the run, when both are largest); the reply names their arrays' shapes and
+types and the arrays follow on a pipe of their own, written from and read into the arrays.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import multiprocessing
 import queue as queue_module
 import signal
@@ -28,6 +34,7 @@ import threading
 import time
 import weakref
 from collections.abc import Callable
+from multiprocessing.connection import Connection
 from typing import Any
 
 import numpy as np
@@ -44,9 +51,17 @@ __all__ = ["DenseMapProcess"]
 _POLL_S = 0.5
 
 
-def _serve(config: Config, in_pieces: bool, requests: multiprocessing.Queue, replies: multiprocessing.Queue) -> None:
+def _serve(
+    config: Config,
+    in_pieces: bool,
+    requests: multiprocessing.Queue,
+    replies: multiprocessing.Queue,
+    bulk: Connection,
+) -> None:
     """Child process: build the map from the requests until ``close``; every request but ``add``
-    is answered with ``(kind, value, sweep milliseconds since the last answer)``."""
+    is answered with ``(kind, value, sweep milliseconds since the last answer)``; an answer of
+    clouds is ``("clouds", layout, ...)`` with their arrays following on ``bulk``
+    (:func:`_send_arrays`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop
     store = SpilledPieceStore() if in_pieces else None
     dense_map = DenseMap(config, MapPieces(config.mapping.map_voxel_m, store) if in_pieces else None)
@@ -67,18 +82,46 @@ def _serve(config: Config, in_pieces: bool, requests: multiprocessing.Queue, rep
             if kind == "close":
                 return
             answer: tuple[str, Any]
+            arrays: list[np.ndarray] = []
             if error is not None:
                 answer = ("error", error)
             else:
                 try:
-                    answer = ("ok", _answer(dense_map, kind, args))
+                    value = _answer(dense_map, kind, args)
+                    if isinstance(value, MapClouds):
+                        arrays = [np.ascontiguousarray(getattr(value, f.name)) for f in dataclasses.fields(value)]
+                        answer = ("clouds", [(a.shape, a.dtype.str) for a in arrays])
+                    else:
+                        answer = ("ok", value)
                 except Exception as err:
                     answer = ("error", err)
             replies.put((*answer, sweep_ms))
             sweep_ms = []
+            _send_arrays(bulk, arrays)
+            del arrays
     finally:
         if store is not None:
             store.close()
+
+
+def _send_arrays(bulk: Connection, arrays: list[np.ndarray]) -> None:
+    """Write each (contiguous) array's bytes to ``bulk``, from the array itself (no copy)."""
+    for array in arrays:
+        bulk.send_bytes(array.data.cast("B") if array.nbytes else b"")
+
+
+def _receive_arrays(bulk: Connection, layout: list[tuple[tuple[int, ...], str]]) -> list[np.ndarray]:
+    """The arrays :func:`_send_arrays` wrote, read from ``bulk`` straight into new arrays of
+    ``layout`` ((shape, dtype string) each)."""
+    arrays = []
+    for shape, dtype in layout:
+        array = np.empty(shape, dtype)
+        if array.nbytes:
+            bulk.recv_bytes_into(array.data.cast("B"))
+        else:
+            bulk.recv_bytes()
+        arrays.append(array)
+    return arrays
 
 
 def _stop(process, requests: multiprocessing.Queue) -> None:
@@ -143,13 +186,15 @@ class DenseMapProcess:
         context = multiprocessing.get_context("spawn")
         self._requests = context.Queue(maxsize=depth)
         self._replies = context.Queue()
+        self._bulk, bulk_sender = context.Pipe(duplex=False)
         self._process = context.Process(
             target=_serve,
-            args=(config, in_pieces, self._requests, self._replies),
+            args=(config, in_pieces, self._requests, self._replies, bulk_sender),
             name="lidar3d-dense-map",
             daemon=True,
         )
         _start_ignoring_sigint(self._process)
+        bulk_sender.close()  # the child's copy is the only writer: its end reads as end of file here
         self._final: MapClouds | None = None  # the clouds of the finished map, once the child ended
         self._close = weakref.finalize(self, _stop, self._process, self._requests)
 
@@ -202,6 +247,13 @@ class DenseMapProcess:
                 self._on_sweep_ms(ms)
         if answer == "error":
             raise value
+        if answer == "clouds":
+            try:
+                return MapClouds(*_receive_arrays(self._bulk, value))
+            except (EOFError, OSError) as err:
+                raise Lidar3dError(
+                    f"the dense map process ended while sending the map (exit code {self._process.exitcode})"
+                ) from err
         return value
 
     def _check_alive(self) -> None:

@@ -126,3 +126,31 @@ def test_ctrl_c_does_not_end_the_child_even_while_it_starts(city):
         assert len(child.clouds().points) > 1000
     finally:
         child.close()
+
+
+def test_an_empty_map_comes_back_as_empty_clouds():
+    child = DenseMapProcess(Config(), in_pieces=False)
+    try:
+        clouds = child.clouds()
+    finally:
+        child.close()
+    assert clouds.points.shape == (0, 3) and clouds.dynamic_points.shape == (0, 3)
+    assert clouds.points.dtype == np.float64 and clouds.intensity.shape == (0,)
+
+
+def test_the_clouds_pipe_carries_arrays_whole_and_reports_a_cut_transfer():
+    import multiprocessing
+
+    from lidar3d.map_process import _receive_arrays, _send_arrays
+
+    arrays = [np.arange(12.0).reshape(4, 3), np.zeros((0, 3)), np.array([1.5, -2.0], np.float32)]
+    receiver, sender = multiprocessing.Pipe(duplex=False)
+    _send_arrays(sender, arrays)
+    back = _receive_arrays(receiver, [(a.shape, a.dtype.str) for a in arrays])
+    for a, b in zip(arrays, back):
+        assert a.dtype == b.dtype
+        np.testing.assert_array_equal(a, b)
+    _send_arrays(sender, arrays[:1])
+    sender.close()  # the child ended before the second array
+    with pytest.raises(EOFError):
+        _receive_arrays(receiver, [(arrays[0].shape, arrays[0].dtype.str)] * 2)
