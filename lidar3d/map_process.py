@@ -124,6 +124,24 @@ def _receive_arrays(bulk: Connection, layout: list[tuple[tuple[int, ...], str]])
     return arrays
 
 
+@contextlib.contextmanager
+def _sigint_deferred():
+    """Hold back a Ctrl-C (SIGINT) until the block ends, then deliver it again: a transfer cut half
+    way would leave the rest of the map in the pipe, to be read as the next answer. Only the main
+    thread receives signals (and may set their handlers); elsewhere nothing is changed."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        if caught:
+            signal.raise_signal(signal.SIGINT)
+
+
 def _stop(process, requests: multiprocessing.Queue) -> None:
     """End the child: ask it to stop, then terminate it if it does not."""
     if process.is_alive():
@@ -249,7 +267,8 @@ class DenseMapProcess:
             raise value
         if answer == "clouds":
             try:
-                return MapClouds(*_receive_arrays(self._bulk, value))
+                with _sigint_deferred():
+                    return MapClouds(*_receive_arrays(self._bulk, value))
             except (EOFError, OSError) as err:
                 raise Lidar3dError(
                     f"the dense map process ended while sending the map (exit code {self._process.exitcode})"

@@ -237,7 +237,7 @@ class SlamPipeline:
         next scan; with dynamic removal the last ``dynamic.window_scans`` wait for the sweeps after
         them) and an open motion-model stretch is reported up to the last scan. ``with_map`` False
         leaves the map's clouds empty: a checkpoint that does not write the map does not fetch it
-        (from the map's process: the whole map pickled, tens of MB, each time).
+        (from the map's process: the whole map copied across, tens of MB, each time).
         """
         keyframes = self.submap.keyframes
         odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)

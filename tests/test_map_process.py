@@ -154,3 +154,19 @@ def test_the_clouds_pipe_carries_arrays_whole_and_reports_a_cut_transfer():
     sender.close()  # the child ended before the second array
     with pytest.raises(EOFError):
         _receive_arrays(receiver, [(arrays[0].shape, arrays[0].dtype.str)] * 2)
+
+
+def test_a_ctrl_c_during_the_clouds_transfer_waits_for_its_end():
+    """A transfer cut half way would leave the rest of the map in the pipe: the interrupt is held
+    back until the arrays are read, then delivered."""
+    import os
+    import signal
+
+    from lidar3d.map_process import _sigint_deferred
+
+    finished = False
+    with pytest.raises(KeyboardInterrupt), _sigint_deferred():
+        os.kill(os.getpid(), signal.SIGINT)
+        finished = True
+    assert finished
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
