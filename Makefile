@@ -3,6 +3,8 @@
 #   make test   - the static checks (make lint: ruff lint and format check, mypy) and the test suite
 #   make bench  - the evaluation suite (eval/run_suite.py): lidar3d beside KISS-ICP and GenZ-ICP on
 #                 every simulated scenario; writes BENCHMARKS.md and eval/results/ (BENCH_ARGS to adjust)
+#   make held-out - eval/held_out.py: five of the suite's layouts driven at other speeds, with other
+#                 imperfections, on seeds the suite does not use (HELD_OUT_ARGS to adjust)
 #   make fuzz   - the property-based parser tests (tests/test_fuzz_*.py) with FUZZ_EXAMPLES (10000) cases
 #                 each instead of the suite's small budget; figures in docs/reliability.md
 # Each creates (or reuses) .venv and installs everything it needs, once.
@@ -14,10 +16,11 @@ STAMP := $(VENV)/.installed
 TEST_STAMP := $(VENV)/.installed-test
 DEMO_OUT ?= demo_output
 BENCH_ARGS ?=
+HELD_OUT_ARGS ?=
 FUZZ_EXAMPLES ?= 10000
 EVAL_STAMP := $(VENV)/.installed-eval
 
-.PHONY: demo lint test bench fuzz clean system-deps
+.PHONY: demo lint test bench held-out fuzz clean system-deps
 
 all: test
 
@@ -70,6 +73,10 @@ $(EVAL_STAMP): pyproject.toml $(STAMP)
 bench: $(STAMP) $(EVAL_STAMP)
 	@bash scripts/ensure_system_deps.sh "$(PYTHON)"
 	$(PY) eval/run_suite.py $(BENCH_ARGS)
+
+held-out: $(STAMP) $(EVAL_STAMP)
+	@bash scripts/ensure_system_deps.sh "$(PYTHON)"
+	$(PY) eval/held_out.py $(HELD_OUT_ARGS)
 
 clean:
 	rm -rf $(VENV) $(DEMO_OUT) .pytest_cache .mypy_cache .ruff_cache
