@@ -35,9 +35,10 @@ for entry in (str(REPO), str(HERE)):
     if entry not in sys.path:
         sys.path.insert(0, entry)
 
-from run_suite import _evaluate, run_worker  # noqa: E402
+from run_suite import evaluate_run, run_worker  # noqa: E402
 from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: E402
 from suite_peers import PEERS  # noqa: E402
+from suite_report import fmt_num, fmt_percent  # noqa: E402
 
 from lidar3d.sim.lidar import StampMode  # noqa: E402
 from lidar3d.sim.scenarios import SCENARIOS, Scenario  # noqa: E402
@@ -123,7 +124,7 @@ def variant_scenario(name: str) -> Scenario:
 def _run_drive(case: CachedScenario, method: str, out_dir: Path, loop_closure: bool) -> dict:
     record = run_worker(method, case, out_dir, genz_deskew=True, timeout_s=3600.0, loop_closure=loop_closure)
     if record["status"] == "ok":
-        _evaluate(record, case, out_dir, method)
+        evaluate_run(record, case, out_dir, method)
     return record
 
 
@@ -137,18 +138,18 @@ def _row(variant: str, seed: int, records: dict[str, dict]) -> str:
         for m, r in records.items()
         if m != "lidar3d" and r["status"] == "ok" and "error" not in r["scores"]["gt"]
     ]
-    best_peer = f"{min(peers):.3f} m" if peers else "–"
     health = ours.get("health", {})
-    drift = health.get("worst_local_drift_m")
-    recall, false_flags = health.get("recall"), health.get("false_flag_rate")
     flags = (
-        f"{'n/a' if recall is None else f'{100 * recall:.0f} %'} / "
-        f"{'n/a' if false_flags is None else f'{100 * false_flags:.1f} %'} ({health.get('bad', 0)})"
+        f"{fmt_percent(health.get('recall'))} / {fmt_percent(health.get('false_flag_rate'))} ({health.get('bad', 0)})"
     )
-    return (
-        f"| {variant} | {seed} | {gt['ate_rmse_m']['3d']:.3f} m | {gt['ate_max_3d_m']:.2f} m "
-        f"| {'–' if drift is None else f'{drift:.2f} m'} | {best_peer} | {flags} |"
-    )
+    cells = [
+        fmt_num(gt["ate_rmse_m"]["3d"], 3, " m"),
+        fmt_num(gt["ate_max_3d_m"], 2, " m"),
+        fmt_num(health.get("worst_local_drift_m"), 2, " m"),
+        fmt_num(min(peers) if peers else None, 3, " m"),
+        flags,
+    ]
+    return f"| {variant} | {seed} | " + " | ".join(cells) + " |"
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -173,7 +173,9 @@ def run_worker(
     return record
 
 
-def _evaluate(record: dict, case: CachedScenario, out_dir: Path, method: str) -> None:
+def evaluate_run(record: dict, case: CachedScenario, out_dir: Path, method: str) -> None:
+    """Score a finished run in ``record`` (its trajectory against the truth and the SPAN log; lidar3d's
+    health flags too), in place."""
     trajectory = out_dir / "trajectory_tum.txt"
     record["scores"] = score_trajectory(
         trajectory,
@@ -295,7 +297,7 @@ def run_suite(args: argparse.Namespace) -> int:
         )
         if record["status"] == "ok":
             try:
-                _evaluate(record, case, out_dir, method)
+                evaluate_run(record, case, out_dir, method)
             except Exception as err:  # a scoring failure is reported in the table, never hides other runs
                 record["status"] = "failed"
                 record["error"] = f"evaluation: {type(err).__name__}: {err}"

@@ -18,8 +18,12 @@ import json
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from lidar3d.sim.scenarios import Scenario
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / "eval" / "cache"
@@ -82,12 +86,12 @@ def cache_folder_name(scenario: str, seed: int, duration_s: float | None) -> str
     return f"{scenario}_s{seed}_{span}"
 
 
-def _key(scenario, seed: int, duration_s: float | None) -> dict:
+def _key(scenario: str | Scenario, seed: int, duration_s: float | None) -> dict:
     from lidar3d import __version__
 
     named = isinstance(scenario, str)
     return {
-        "scenario": scenario if named else scenario.name,
+        "scenario": _name(scenario),
         **({} if named else {"definition": repr(scenario)}),
         "seed": int(seed),
         "duration_s": duration_s,
@@ -125,8 +129,12 @@ def _load(folder: Path, scenario: str, seed: int, duration_s: float | None, gene
     )
 
 
+def _name(scenario: str | Scenario) -> str:
+    return scenario if isinstance(scenario, str) else scenario.name
+
+
 def ensure_scenario(
-    scenario,
+    scenario: str | Scenario,
     seed: int = 0,
     duration_s: float | None = None,
     *,
@@ -137,7 +145,7 @@ def ensure_scenario(
     whose whole definition keys the cache), generated first if missing or stale."""
     from lidar3d.sim import Simulation, write_simulation
 
-    name = scenario if isinstance(scenario, str) else scenario.name
+    name = _name(scenario)
     folder = Path(cache_dir) / cache_folder_name(name, seed, duration_s)
     key = _key(scenario, seed, duration_s)
     key_path = folder / KEY_NAME

@@ -24,7 +24,7 @@ def _get(d: dict | None, *path: str):
     return d
 
 
-def _num(value, digits: int = 2, suffix: str = "") -> str:
+def fmt_num(value, digits: int = 2, suffix: str = "") -> str:
     if value is None or (isinstance(value, float) and math.isnan(value)):
         return DASH
     return f"{value:.{digits}f}{suffix}"
@@ -70,7 +70,7 @@ def _triple(methods: Sequence[str], per_method: dict[str, dict], fmt) -> str:
 
 def _drift_text(row: dict) -> str:
     m, pct = _get(row, "scores", "end_drift", "m"), _get(row, "scores", "end_drift", "percent")
-    return DASH if m is None else f"{m:.2f} ({_num(pct, 2)} %)"
+    return DASH if m is None else f"{m:.2f} ({fmt_num(pct, 2)} %)"
 
 
 def _loops_text(row: dict) -> str:
@@ -82,7 +82,7 @@ def _loops_text(row: dict) -> str:
     return (DASH if value is None else str(value)) + context
 
 
-def _percent(value) -> str:
+def fmt_percent(value) -> str:
     return DASH if value is None else f"{100 * value:.1f} %"
 
 
@@ -116,10 +116,10 @@ def _health_lines(
                 [
                     _case_label(row, multi_seed),
                     counts,
-                    _num(lost_m, 1),
+                    fmt_num(lost_m, 1),
                     f"{check.get('bad')} of {check.get('scored')}",
-                    _percent(check.get("recall")),
-                    _percent(check.get("false_flag_rate")),
+                    fmt_percent(check.get("recall")),
+                    fmt_percent(check.get("false_flag_rate")),
                 ]
             )
         )
@@ -156,12 +156,12 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
         any_row = next(iter(per.values()))
         cells = [
             _case_label(any_row, multi_seed),
-            _num(any_row["case"]["path_length_m"], 0),
+            fmt_num(any_row["case"]["path_length_m"], 0),
             str(any_row["case"]["n_scans"]),
-            _triple(methods, per, lambda r: _num(_get(r, "scores", "gt", "ate_rmse_m", "3d"), 2)),
-            _triple(methods, per, lambda r: _num(_get(r, "scores", "gt", "rpe_kitti", "translation_percent"), 2)),
-            _triple(methods, per, lambda r: _num(_get(r, "scores", "end_drift", "m"), 2)),
-            _triple(methods, per, lambda r: _num(_get(r, "run", "scans_per_s"), 1)),
+            _triple(methods, per, lambda r: fmt_num(_get(r, "scores", "gt", "ate_rmse_m", "3d"), 2)),
+            _triple(methods, per, lambda r: fmt_num(_get(r, "scores", "gt", "rpe_kitti", "translation_percent"), 2)),
+            _triple(methods, per, lambda r: fmt_num(_get(r, "scores", "end_drift", "m"), 2)),
+            _triple(methods, per, lambda r: fmt_num(_get(r, "run", "scans_per_s"), 1)),
         ]
         for p in peers:
             ratio = wall_ratio(per.get("lidar3d"), per.get(p))
@@ -201,13 +201,13 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                     [
                         label,
                         METHOD_NAMES[method],
-                        _num(_get(gt, "ate_rmse_m", "3d"), 3),
-                        _num(_get(gt, "ate_rmse_m", "horizontal"), 3),
-                        _num(_get(gt, "ate_rmse_m", "vertical"), 3),
-                        _num(_get(gt, "ate_rotation_rmse_deg"), 2),
-                        _num(_get(gt, "rpe_kitti", "translation_percent"), 2),
-                        _num(_get(gt, "rpe_kitti", "rotation_deg_per_100m"), 2),
-                        _num(_get(gt, "rpe_distance", "10m", "translation_percent"), 2),
+                        fmt_num(_get(gt, "ate_rmse_m", "3d"), 3),
+                        fmt_num(_get(gt, "ate_rmse_m", "horizontal"), 3),
+                        fmt_num(_get(gt, "ate_rmse_m", "vertical"), 3),
+                        fmt_num(_get(gt, "ate_rotation_rmse_deg"), 2),
+                        fmt_num(_get(gt, "rpe_kitti", "translation_percent"), 2),
+                        fmt_num(_get(gt, "rpe_kitti", "rotation_deg_per_100m"), 2),
+                        fmt_num(_get(gt, "rpe_distance", "10m", "translation_percent"), 2),
                         _drift_text(row),
                         _loops_text(row),
                     ]
@@ -246,10 +246,10 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                         _case_label(row, multi_seed),
                         METHOD_NAMES[method],
                         f"{span.get('associated', 0)} of {span.get('of', 0)}",
-                        _num(_get(span, "ate_rmse_m", "3d"), 3),
-                        _num(_get(span, "ate_rmse_m", "horizontal"), 3),
-                        _num(_get(span, "ate_rmse_m", "vertical"), 3),
-                        _num(_get(span, "rpe_kitti", "translation_percent"), 2),
+                        fmt_num(_get(span, "ate_rmse_m", "3d"), 3),
+                        fmt_num(_get(span, "ate_rmse_m", "horizontal"), 3),
+                        fmt_num(_get(span, "ate_rmse_m", "vertical"), 3),
+                        fmt_num(_get(span, "rpe_kitti", "translation_percent"), 2),
                     ]
                 )
             )
@@ -275,11 +275,11 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                         _case_label(row, multi_seed),
                         METHOD_NAMES[method],
                         str(n),
-                        _num(wall, 1),
-                        _num(_get(row, "run", "scans_per_s"), 1),
-                        _num(1e3 * wall / n if wall and n else None, 1),
+                        fmt_num(wall, 1),
+                        fmt_num(_get(row, "run", "scans_per_s"), 1),
+                        fmt_num(1e3 * wall / n if wall and n else None, 1),
                         (f"{ratio:.2f}×" if ratio is not None else (DASH if method != "lidar3d" else "1.00×")),
-                        _num(row.get("peak_rss_mib"), 0),
+                        fmt_num(row.get("peak_rss_mib"), 0),
                     ]
                 )
             )
@@ -310,9 +310,9 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                 _row(
                     [
                         _case_label(row, multi_seed),
-                        *(_num(v, 1) for v in means),
-                        _num(total, 1),
-                        _num(1e3 * wall / n if wall and n else None, 1),
+                        *(fmt_num(v, 1) for v in means),
+                        fmt_num(total, 1),
+                        fmt_num(1e3 * wall / n if wall and n else None, 1),
                     ]
                 )
             )
@@ -329,8 +329,8 @@ def render_markdown(rows: Sequence[dict], header: dict) -> str:
                 if _ok(row):
                     label = label or _case_label(row, multi_seed)
                     cells.append(
-                        f"{_num(_get(row, 'run', 'stage_ms', 'read', 'mean'), 1)} / "
-                        f"{_num(_get(row, 'run', 'stage_ms', 'register', 'mean'), 1)}"
+                        f"{fmt_num(_get(row, 'run', 'stage_ms', 'read', 'mean'), 1)} / "
+                        f"{fmt_num(_get(row, 'run', 'stage_ms', 'register', 'mean'), 1)}"
                     )
                 else:
                     cells.append(DASH)
@@ -388,25 +388,25 @@ def speed_target_lines(cases: Sequence, grid: dict, multi_seed: bool) -> list[st
         stages = _get(ours, "run", "stage_ms") or {}
 
         def median(name: str, stats: dict = stages) -> str:
-            return _num(_get(stats, name, "median"), 1)
+            return fmt_num(_get(stats, name, "median"), 1)
 
         out.append(
             _row(
                 [
                     _case_label(ours, multi_seed),
                     str(_get(ours, "run", "scans")),
-                    _num(ours.get("process_wall_s"), 1),
-                    _num(kiss.get("process_wall_s"), 1) if _ok(kiss) else DASH,
+                    fmt_num(ours.get("process_wall_s"), 1),
+                    fmt_num(kiss.get("process_wall_s"), 1) if _ok(kiss) else DASH,
                     f"{ratio:.2f}×" if ratio is not None else DASH,
-                    f"{_num(ours.get('cpu_s'), 1)} / " + (_num(kiss.get("cpu_s"), 1) if _ok(kiss) else DASH),
+                    f"{fmt_num(ours.get('cpu_s'), 1)} / " + (fmt_num(kiss.get("cpu_s"), 1) if _ok(kiss) else DASH),
                     median("front_end", _get(ours, "run", "composite_ms") or {}),
                     median("deskew"),
                     median("odometry"),
                     median("mapping"),
-                    f"{median('redeskew')} ({_num(_get(stages, 'redeskew', 'p95'), 1)})",
+                    f"{median('redeskew')} ({fmt_num(_get(stages, 'redeskew', 'p95'), 1)})",
                     median("map_update"),
-                    f"{_num(ours.get('peak_tree_rss_mib'), 0)} / "
-                    + (_num(kiss.get("peak_tree_rss_mib"), 0) if _ok(kiss) else DASH),
+                    f"{fmt_num(ours.get('peak_tree_rss_mib'), 0)} / "
+                    + (fmt_num(kiss.get("peak_tree_rss_mib"), 0) if _ok(kiss) else DASH),
                 ]
             )
         )

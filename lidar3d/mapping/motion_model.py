@@ -231,21 +231,22 @@ class MotionModel:
         information its bounded accelerations allow (see :class:`~lidar3d.config.MotionConfig`),
         widened where the recent prediction errors that persisted from scan to scan are larger
         (:meth:`learn_innovation`)."""
-        twist = self.vehicle_twist()
+        basis = self._basis()
+        twist = self._on_axis(self.twist, basis)
         T_mean = T_world_previous @ exp_se3(twist * dt_s)
         sigma = _step_sigma(config, dt_s, self.forward_axis is not None)
         if self.forward_axis is not None:  # the sideways velocity rests on the lever's yaw rate
-            sigma[1] = np.hypot(sigma[1], config.lever_sigma_m * float(twist[3:] @ self._basis()[:, 2]) * dt_s)
+            sigma[1] = np.hypot(sigma[1], config.lever_sigma_m * float(twist[3:] @ basis[:, 2]) * dt_s)
         sigma = np.maximum(sigma, np.sqrt(self._innovation_product))
-        return PosePrior(T_mean, _information(sigma, T_mean[:3, :3] @ self._basis(), config))
+        return PosePrior(T_mean, _information(sigma, T_mean[:3, :3] @ basis, config))
 
-    def _on_axis(self, twist: np.ndarray) -> np.ndarray:
+    def _on_axis(self, twist: np.ndarray, basis: np.ndarray | None = None) -> np.ndarray:
         """``twist`` with its velocity along the direction of travel plus the sideways velocity the
         lever gives its yaw rate (no slip at the rear axle); unchanged while the direction is not
-        established."""
+        established. ``basis``: :meth:`_basis`, when the caller has it already."""
         twist = twist.copy()
         if self.forward_axis is not None:
-            axis, lateral, up = self._basis().T
+            axis, lateral, up = (self._basis() if basis is None else basis).T
             twist[:3] = (twist[:3] @ axis) * axis + self.lever_m * float(twist[3:] @ up) * lateral
         return twist
 
