@@ -556,7 +556,9 @@ class LoopConfig:
     min_time_gap_s: float = _key(
         30.0, _closed(0.0, 1e7, "s"), "candidates at least this much older (historyKeyframeSearchTimeDiff)"
     )
-    max_candidates: int = _key(2, _closed(1, 1000), "verified per query keyframe, nearest first, until one is accepted")
+    max_candidates: int = _key(
+        2, _closed(1, 1000), "verified per query keyframe, nearest first, until one is accepted (one per submap)"
+    )
     cooldown_keyframes: int = _key(5, _closed(0, 1_000_000), "after an accepted loop, skip this many query keyframes")
     submap_neighbours: int = _key(
         10, _closed(0, 10000), "target = match +- this many keyframes (LeGO-LOAM +-25 at 0.3 m spacing)"

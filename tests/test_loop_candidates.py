@@ -66,3 +66,21 @@ def test_bad_shapes_raise():
         find_candidates(positions, stamps, 5, radius_m=7.0, min_time_gap_s=30.0)
     with pytest.raises(ValueError, match=r"expected \(K,3\)"):
         find_candidates(positions[:, :2], stamps, 4, radius_m=7.0, min_time_gap_s=30.0)
+
+
+def test_a_second_candidate_comes_from_another_pass_not_the_first_ones_neighbours():
+    # keyframes 0-9 along y = 1.5 m (first pass), 10-19 far away, 20-29 along y = 0 (second pass)
+    x = np.r_[np.arange(10.0), 100.0 + np.arange(10.0), np.arange(10.0) + 0.3, 4.2]
+    y = np.r_[np.full(10, 1.5), np.zeros(21)]
+    positions = np.column_stack([x, y, np.zeros_like(x)])
+    stamps = np.arange(len(x), dtype=np.int64) * 10 * S
+    near = find_candidates(positions, stamps, 30, radius_m=7.0, min_time_gap_s=30.0, max_candidates=2)
+    assert near.matches.tolist() == [24, 23]  # 0.1 and 0.9 m away: one pass, nearly one submap
+    apart = find_candidates(
+        positions, stamps, 30, radius_m=7.0, min_time_gap_s=30.0, max_candidates=3, min_separation=5
+    )
+    assert apart.matches.tolist() == [24, 4]  # the first pass's nearest (1.5 m) instead
+    one_pass = find_candidates(
+        positions, stamps, 30, radius_m=7.0, min_time_gap_s=30.0, max_candidates=3, min_separation=25
+    )
+    assert one_pass.matches.tolist() == [24]

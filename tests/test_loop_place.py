@@ -3,6 +3,7 @@ finding a revisit that the distance gate cannot see because the estimate drifted
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 
 import numpy as np
@@ -11,7 +12,7 @@ from test_loop_sim import KEYFRAME_STRIDE, _cloud, _sim
 
 from lidar3d.config import LoopConfig
 from lidar3d.loop import LoopCloser, Verdict
-from lidar3d.loop.consistency import cycle_error, keep_consistent, pairwise_consistent
+from lidar3d.loop.consistency import HeldClosure, cycle_error, keep_consistent, pairwise_consistent
 from lidar3d.loop.place import PlaceIndex, ScanContext, level_rotation, place_guess
 from lidar3d.loop.records import LoopCandidate
 from lidar3d.mapping.keyframes import Keyframe
@@ -126,13 +127,13 @@ def test_a_closure_that_disagrees_with_the_one_before_is_kept_out():
     assert keep_consistent(truth, path, recent, [far], [far], config) == [far]  # too far apart to compare
 
 
-def _badly_drifting_keyframes():
-    """The ``loop`` drive as keyframes whose odometry turns 0.1 deg too far per keyframe: at the
-    revisit the estimate is tens of metres off, beyond the 7 m distance gate."""
+def _badly_drifting_keyframes(yaw_bias_deg: float = 0.1):
+    """The ``loop`` drive as keyframes whose odometry turns ``yaw_bias_deg`` too far per keyframe:
+    with 0.1 deg, at the revisit the estimate is tens of metres off, beyond the 7 m distance gate."""
     sim = _sim()
     gt = sim.ground_truth.T_world_lidar
     scans = list(range(0, len(sim), KEYFRAME_STRIDE))
-    bias = exp_se3(np.array([0.0, 0.0, 0.0, 0.0, 0.0, np.radians(0.1)]))
+    bias = exp_se3(np.array([0.0, 0.0, 0.0, 0.0, 0.0, np.radians(yaw_bias_deg)]))
     raw = [gt[scans[0]]]
     for a, b in itertools.pairwise(scans):
         raw.append(raw[-1] @ invert(gt[a]) @ gt[b] @ bias)
@@ -143,8 +144,8 @@ def _badly_drifting_keyframes():
     return keyframes, np.array(raw), gt[scans]
 
 
-def _close_loops(config: LoopConfig):
-    keyframes, raw, truth = _badly_drifting_keyframes()
+def _close_loops(config: LoopConfig, yaw_bias_deg: float = 0.1):
+    keyframes, raw, truth = _badly_drifting_keyframes(yaw_bias_deg)
     closer = LoopCloser(config)
     correction = np.eye(4)
     poses: list[np.ndarray] = []
@@ -175,3 +176,48 @@ def test_place_recognition_closes_a_revisit_the_distance_gate_cannot_see():
     revisit_error_m = np.linalg.norm(raw[-1, :3, 3] - truth[-1, :3, 3])
     assert revisit_error_m > 2 * config.search_radius_m
     assert np.linalg.norm(final[-1, :3, 3] - truth[-1, :3, 3]) < 0.1 * revisit_error_m
+
+
+def test_a_distance_closure_beyond_the_drift_allowance_waits_for_a_second_one():
+    # 0.02 deg per keyframe: 7 m off when the drive comes back, inside the gate's 7 m radius once
+    # the street is re-entered but more than the 4.9 m the drift allowance grants there
+    config = dataclasses.replace(LoopConfig(), source="distance")
+    closer, raw, truth = _close_loops(config, yaw_bias_deg=0.02)
+    first = min(closer.closures, key=lambda c: c.query)
+    path_m = np.linalg.norm(np.diff(raw[first.match : first.query + 1, :3, 3], axis=0), axis=1).sum()
+    allowance_m = config.max_correction_m + config.correction_per_distance * path_m
+    assert first.correction_m > allowance_m > 4.0
+    assert "confirmed by keyframe" in first.reason
+    held = [c for c in closer.candidates if c.verdict is Verdict.UNCONFIRMED]
+    assert held and held[0].query == first.query and held[0].information.any()
+    # accepted at the first two keyframes whose registration converged, not after the estimate
+    # crept back within the allowance
+    assert first.query <= min(c.query for c in closer.candidates) + 3
+    for c in closer.closures:
+        T_true = invert(truth[c.match]) @ truth[c.query]
+        assert np.linalg.norm((invert(T_true) @ c.T_match_query)[:3, 3]) < 0.2
+
+
+def test_a_held_closure_enters_the_graph_only_with_an_agreeing_one_of_another_keyframe():
+    truth = np.array([_pose(float(x), 0.0, 0.0) for x in range(40)])
+    path = np.arange(40, dtype=float)
+    config = LoopConfig()
+    held = HeldClosure(config)
+    right = _candidate(30, 1, invert(truth[1]) @ truth[30])
+    slid = _candidate(31, 2, invert(truth[2]) @ truth[31] @ _pose(3.0, 0.0, 0.0))  # ICP slid 3 m
+    records = [right]
+    assert held.hold(records, truth, path, moved_m=6.0, moved_deg=0.0, allowance_m=5.0) == []
+    assert records[0].verdict is Verdict.UNCONFIRMED and "drift allowance 5.00 m" in records[0].reason
+    same_query = [_candidate(30, 2, invert(truth[2]) @ truth[30])]
+    assert held.hold(same_query, truth, path, moved_m=6.0, moved_deg=0.0, allowance_m=5.0) == []
+    records = [slid]
+    assert held.hold(records, truth, path, moved_m=6.0, moved_deg=0.0, allowance_m=5.0) == []
+    assert held.pending is not None and held.pending.query == 31  # the newer one is held instead
+    agreeing = _candidate(32, 3, invert(truth[3]) @ truth[32] @ _pose(3.0, 0.0, 0.0))
+    records = [agreeing]
+    pair = held.hold(records, truth, path, moved_m=6.0, moved_deg=0.0, allowance_m=5.0)
+    assert [(c.query, c.verdict) for c in pair] == [(31, Verdict.ACCEPTED), (32, Verdict.ACCEPTED)]
+    assert [c.query for c in records] == [32, 31] and held.pending is None
+    held.hold([right], truth, path, moved_m=6.0, moved_deg=0.0, allowance_m=5.0)
+    held.expire(30 + config.consistency_keyframes + 1)
+    assert held.pending is None

@@ -6,7 +6,11 @@ measures the distance in the horizontal plane only (x, y), so that height drift,
 of LiDAR-only odometry, does not hide a revisit. Here the distance is horizontal by default (3-D on
 request), every keyframe at least ``min_time_gap_s`` older than the query is eligible, and the
 eligible keyframes within the radius are returned nearest first (ties: lower index first), at most
-``max_candidates`` of them.
+``max_candidates`` of them, each more than ``min_separation`` keyframes from the nearer ones: the
+verification registers against a match's ``±submap_neighbours`` keyframes, so the neighbour of a
+rejected match is the same test again (on the suite's drives a second candidate next to the first
+was accepted twice in some 200 tries, and cost a verification each time), while a keyframe of
+another pass is a different one.
 """
 
 from __future__ import annotations
@@ -49,6 +53,7 @@ def find_candidates(
     min_time_gap_s: float,
     horizontal: bool = True,
     max_candidates: int = 1,
+    min_separation: int = 0,
 ) -> CandidateSet:
     """Keyframes before ``query`` within ``radius_m`` of it and at least ``min_time_gap_s`` older.
 
@@ -60,6 +65,7 @@ def find_candidates(
         min_time_gap_s: a candidate must be at least this much older than the query.
         horizontal: measure the distance on (x, y) only (default) instead of (x, y, z).
         max_candidates: return at most this many, nearest first.
+        min_separation: skip a keyframe within this many keyframes of a nearer candidate.
 
     Returns:
         The candidate set (possibly empty).
@@ -82,5 +88,10 @@ def find_candidates(
     distance = np.sqrt(np.einsum("ij,ij->i", delta, delta))
     inside = distance <= radius_m
     earlier, distance = earlier[inside], distance[inside]
-    order = np.lexsort((earlier, distance))[:max_candidates]
-    return CandidateSet(query, earlier[order].astype(np.int64), distance[order])
+    chosen: list[int] = []
+    for i in np.lexsort((earlier, distance)).tolist():
+        if all(abs(int(earlier[i]) - int(earlier[j])) > min_separation for j in chosen):
+            chosen.append(i)
+            if len(chosen) == max_candidates:
+                break
+    return CandidateSet(query, earlier[chosen].astype(np.int64), distance[chosen])

@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.loop.candidates import find_candidates
-from lidar3d.loop.consistency import keep_consistent
+from lidar3d.loop.consistency import HeldClosure, keep_consistent
 from lidar3d.loop.place_closures import PlaceClosures
 from lidar3d.loop.pose_graph import PoseGraph
 from lidar3d.loop.records import LoopCandidate, Verdict
@@ -148,7 +148,8 @@ class LoopCloser:
         self._stamps_ns: list[int] = []
         self._last_accepted_query = -(10**9)
         self._recent_closure: LoopCandidate | None = None
-        self.places = PlaceClosures(config) if config.source != "distance" else None
+        self.held = HeldClosure(config)
+        self.places = PlaceClosures(config, self.held) if config.source != "distance" else None
 
     @property
     def closures(self) -> list[LoopCandidate]:
@@ -210,6 +211,8 @@ class LoopCloser:
         records: list[LoopCandidate] = []
         accepted: list[LoopCandidate] = []
         tried: set[int] = set()
+        path_m = np.asarray(self._path_m)
+        self.held.expire(query)
         if cfg.source != "place":
             found = find_candidates(
                 poses[:, :3, 3],
@@ -219,16 +222,30 @@ class LoopCloser:
                 min_time_gap_s=cfg.min_time_gap_s,
                 horizontal=cfg.horizontal_distance,
                 max_candidates=cfg.max_candidates,
+                min_separation=cfg.submap_neighbours,
             )
             for match, distance in zip(found.matches.tolist(), found.distances_m.tolist()):
                 tried.add(match)
                 record = self._verify(keyframes, poses, stamps, query, match, distance)
                 records.append(record)
+                if record.verdict is Verdict.LARGE_CORRECTION:
+                    # a good registration farther from the estimate than the allowance: held until
+                    # a closure of another keyframe agrees (this keyframe's evidence is used)
+                    accepted = self.held.hold(
+                        records,
+                        poses,
+                        path_m,
+                        moved_m=record.correction_m,
+                        moved_deg=record.correction_deg,
+                        allowance_m=self._drift_allowance_m(query, match),
+                    )
+                    break
                 if record.accepted:
                     accepted.append(record)
                     break
-        accepted = keep_consistent(poses, np.asarray(self._path_m), self._recent_closure, accepted, records, cfg)
-        if not accepted and self.places is not None:
+        accepted = keep_consistent(poses, path_m, self._recent_closure, accepted, records, cfg)
+        held_here = self.held.pending is not None and self.held.pending.query == query
+        if not accepted and not held_here and self.places is not None:
             gap_ns = int(round(cfg.min_time_gap_s * 1e9))
             eligible = np.flatnonzero(stamps[:query] <= stamps[query] - gap_ns)
             eligible = eligible[~np.isin(eligible, sorted(tried))]
@@ -237,10 +254,8 @@ class LoopCloser:
                 distance = float(np.linalg.norm(poses[query, :2, 3] - poses[match, :2, 3]))
                 return self._verify(keyframes, poses, stamps, query, match, distance, guess, limit_m, "place")
 
-            accepted = self.places.closures(
-                query, eligible, poses, np.asarray(self._path_m), verify, self._drift_allowance_m, records
-            )
-            accepted = keep_consistent(poses, np.asarray(self._path_m), self._recent_closure, accepted, records, cfg)
+            accepted = self.places.closures(query, eligible, poses, path_m, verify, self._drift_allowance_m, records)
+            accepted = keep_consistent(poses, path_m, self._recent_closure, accepted, records, cfg)
         for record in accepted:
             self.graph.add_loop(record.query, record.match, record.T_match_query, record.information)
         if accepted:

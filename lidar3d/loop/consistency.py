@@ -7,9 +7,9 @@ their ends form a cycle: the pose of ``q2`` in ``m1``'s frame follows both from
 closures agree up to the drift over the short odometry spans; a wrong one disagrees by its own
 error. This is the pairwise test of pairwise consistency maximisation (J. Mangelson et al.,
 "Pairwise Consistent Measurement Set Maximization for Robust Multi-robot Map Merging", ICRA
-2018), used here to let a place match that moves the trajectory by more than its drift allowance
-into the graph only when a second closure confirms it, and to keep a closure out of it when it
-disagrees with the one accepted just before (:func:`keep_consistent`).
+2018), used here to let a verified match that moves the trajectory by more than its drift
+allowance into the graph only when a second closure confirms it (:class:`HeldClosure`), and to keep
+a closure out of it when it disagrees with the one accepted just before (:func:`keep_consistent`).
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 from lidar3d.loop.records import LoopCandidate, Verdict
 from lidar3d.mapping.se3 import invert
 
-__all__ = ["closures_agree", "cycle_error", "keep_consistent", "pairwise_consistent"]
+__all__ = ["HeldClosure", "closures_agree", "cycle_error", "keep_consistent", "pairwise_consistent"]
 
 
 def cycle_error(
@@ -97,3 +97,85 @@ def keep_consistent(
                 record, verdict=Verdict.INCONSISTENT, reason=f"{why}; {record.reason}", information=np.zeros((6, 6))
             )
     return []
+
+
+class HeldClosure:
+    """The verified closure that moves the estimate farther than drift explains, held until a
+    closure of another query keyframe agrees with it.
+
+    Either candidate source may hold or confirm: a distance candidate whose ICP slid farther than
+    the gate's drift allowance (along a corridor the estimate may have drifted farther than the
+    allowance assumes) and a place match far from the estimate are the same evidence, a good
+    registration that the estimate cannot vouch for. Two of them from different query keyframes
+    that close a consistent cycle (:func:`closures_agree`) both enter the graph; a single one never
+    does, so one wrong match cannot move the trajectory by more than the drift allowance.
+
+    Args:
+        config: a :class:`lidar3d.config.LoopConfig` (``consistency_keyframes``: how long a closure
+            is held; the cycle tolerances).
+    """
+
+    def __init__(self, config) -> None:
+        self.config = config
+        self.pending: LoopCandidate | None = None
+
+    def expire(self, query: int) -> None:
+        """Forget the held closure when it is more than ``consistency_keyframes`` keyframes older."""
+        if self.pending is not None and query - self.pending.query > self.config.consistency_keyframes:
+            self.pending = None
+
+    def hold(
+        self,
+        records: list[LoopCandidate],
+        poses: np.ndarray,
+        path_m: np.ndarray,
+        *,
+        moved_m: float,
+        moved_deg: float,
+        allowance_m: float,
+    ) -> list[LoopCandidate]:
+        """Hold ``records[-1]`` (verified, its measurement and information set), or confirm the
+        held one with it.
+
+        Args:
+            records: the call's verified candidates; the last one is replaced by its held
+                (``Verdict.UNCONFIRMED``) or accepted version, and an accepted earlier closure is
+                appended.
+            poses: (K,4,4) current keyframe poses; path_m: (K,) travelled distance at each.
+            moved_m, moved_deg: how far the closure moves the estimate; allowance_m: the drift
+                allowance it exceeds (for the reason).
+
+        Returns:
+            ``[earlier, this]`` when the held closure and this one agree, else ``[]`` (this one is
+            now the held closure).
+        """
+        record = records[-1]
+        held = dataclasses.replace(
+            record,
+            verdict=Verdict.UNCONFIRMED,
+            reason=f"moves the estimate {moved_m:.2f} m / {moved_deg:.1f} deg (drift allowance "
+            f"{allowance_m:.2f} m / {self.config.max_correction_deg:g} deg): needs a consistent second "
+            f"closure; {record.reason}",
+        )
+        records[-1] = held
+        pending = self.pending
+        if pending is not None and pending.query != held.query:
+            ok, error_m, error_deg = closures_agree(poses, path_m, pending, held, self.config)
+            if ok:
+                self.pending = None
+                note = f"cycle error {error_m:.2f} m / {error_deg:.2f} deg"
+                first = dataclasses.replace(
+                    pending,
+                    verdict=Verdict.ACCEPTED,
+                    reason=f"confirmed by keyframe {held.query} ({note}); {pending.reason}",
+                )
+                second = dataclasses.replace(
+                    held,
+                    verdict=Verdict.ACCEPTED,
+                    reason=f"consistent with keyframe {pending.query} ({note}); {held.reason}",
+                )
+                records[-1] = second
+                records.append(first)
+                return [first, second]
+        self.pending = held
+        return []

@@ -4,21 +4,20 @@ descriptor's yaw, and the confirmation of corrections larger than drift explains
 A verified place match whose correction of the estimate is within the distance gate's drift
 allowance is accepted as a distance closure would be. One beyond it (the estimate drifted
 farther than the gate believes possible, or the match is wrong) is held as unconfirmed until a
-place match within ``loop.consistency_keyframes`` keyframes agrees with it
-(:func:`~lidar3d.loop.consistency.pairwise_consistent`); then both enter the graph. A single
-wrong match can therefore never move the trajectory by more than the drift allowance.
+closure of another keyframe (place or distance) within ``loop.consistency_keyframes`` keyframes
+agrees with it (:class:`~lidar3d.loop.consistency.HeldClosure`); then both enter the graph. A
+single wrong match can therefore never move the trajectory by more than the drift allowance.
 """
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Callable
 
 import numpy as np
 
-from lidar3d.loop.consistency import closures_agree
+from lidar3d.loop.consistency import HeldClosure
 from lidar3d.loop.place import PlaceIndex, place_guess
-from lidar3d.loop.records import LoopCandidate, Verdict
+from lidar3d.loop.records import LoopCandidate
 from lidar3d.loop.verification import pose_change
 from lidar3d.mapping.se3 import invert, nearest_rigid
 
@@ -26,14 +25,17 @@ __all__ = ["PlaceClosures"]
 
 
 class PlaceClosures:
-    """The Scan Context index of the keyframes and the place closure waiting for confirmation.
+    """The Scan Context index of the keyframes and their verification.
 
     Args:
         config: a :class:`lidar3d.config.LoopConfig`.
+        held: the loop closer's closure waiting for confirmation (shared with its distance
+            candidates).
     """
 
-    def __init__(self, config) -> None:
+    def __init__(self, config, held: HeldClosure) -> None:
         self.config = config
+        self.held = held
         self.index = PlaceIndex(
             rings=config.place_rings,
             sectors=config.place_sectors,
@@ -41,7 +43,6 @@ class PlaceClosures:
             candidates=config.place_candidates,
             threshold=config.place_threshold,
         )
-        self.pending: LoopCandidate | None = None
 
     def add(self, points_lidar: np.ndarray, T_world_lidar: np.ndarray) -> None:
         """Describe the next keyframe: its (N,3) lidar-frame cloud at pose (4,4)."""
@@ -72,8 +73,6 @@ class PlaceClosures:
             unconfirmed closure and the new one that agrees with it.
         """
         cfg = self.config
-        if self.pending is not None and query - self.pending.query > cfg.consistency_keyframes:
-            self.pending = None
         for place in self.index.query(query, eligible)[: cfg.max_candidates]:
             guess = place_guess(poses[place.match], poses[query], place.yaw_rad)
             # the descriptor puts the two at one place, within about its first ICP stage
@@ -86,36 +85,5 @@ class PlaceClosures:
             allowance_m = drift_allowance_m(query, place.match)
             if moved_m <= allowance_m and moved_deg <= cfg.max_correction_deg:
                 return [record]
-            held = dataclasses.replace(
-                record,
-                verdict=Verdict.UNCONFIRMED,
-                reason=f"moves the estimate {moved_m:.2f} m / {moved_deg:.1f} deg (drift allowance "
-                f"{allowance_m:.2f} m): needs a consistent second closure; {record.reason}",
-            )
-            records[-1] = held
-            confirmed = self._confirm(held, poses, path_m)
-            if confirmed:
-                records[-1] = confirmed[1]
-                records.append(confirmed[0])
-                return confirmed
-            self.pending = held
-            return []
+            return self.held.hold(records, poses, path_m, moved_m=moved_m, moved_deg=moved_deg, allowance_m=allowance_m)
         return []
-
-    def _confirm(self, held: LoopCandidate, poses: np.ndarray, path_m: np.ndarray) -> list[LoopCandidate]:
-        """[pending, held] both accepted when they agree, else []."""
-        pending = self.pending
-        if pending is None:
-            return []
-        ok, error_m, error_deg = closures_agree(poses, path_m, pending, held, self.config)
-        if not ok:
-            return []
-        self.pending = None
-        note = f"cycle error {error_m:.2f} m / {error_deg:.2f} deg"
-        first = dataclasses.replace(
-            pending, verdict=Verdict.ACCEPTED, reason=f"confirmed by keyframe {held.query} ({note}); {pending.reason}"
-        )
-        second = dataclasses.replace(
-            held, verdict=Verdict.ACCEPTED, reason=f"consistent with keyframe {pending.query} ({note}); {held.reason}"
-        )
-        return [first, second]

@@ -22,7 +22,7 @@ class Verdict(str, enum.Enum):
     LARGE_CORRECTION = "large_correction"  # ICP moved farther from the guess than the drift can explain
     GRAPH_ERROR = "graph_error"  # verified, but the pose graph could not take the factor
     INCONSISTENT = "inconsistent"  # verified, but its cycle with the closure accepted just before does not close
-    UNCONFIRMED = "unconfirmed"  # a place match that moves the estimate farther than drift explains,
+    UNCONFIRMED = "unconfirmed"  # a verified match that moves the estimate farther than drift explains,
     # waiting for a second closure consistent with it (the accepted pair is recorded again)
 
 
@@ -50,7 +50,7 @@ class LoopCandidate:
             initial guess when ICP did not run).
         information: (6,6) float64 information of ``T_match_query`` for a GTSAM ``BetweenFactor``:
             tangent order (rx, ry, rz, tx, ty, tz), rad and m, perturbation on the right (query
-            frame). Zero when not accepted (kept for an unconfirmed place match).
+            frame). Zero when not accepted (kept for an unconfirmed closure and a large correction).
         source: who proposed the candidate: ``distance`` (the gate around the estimate) or
             ``place`` (the Scan Context descriptor).
     """

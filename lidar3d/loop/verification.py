@@ -26,7 +26,9 @@ their users asked for, see ``shared/reference/lego-loam-and-peers.md`` §3 row 5
    (fraction of source points with a correspondence at the final distance) at or above the
    threshold, inlier RMSE at or below it, voxel overlap ``|A ∩ B| / min(|A|, |B|)`` of the aligned
    clouds at or above it (KISS-SLAM: 0.4 at its voxel size), and an ICP correction no larger than the
-   drift accumulated since the match keyframe can explain. Every outcome carries a reason.
+   drift accumulated since the match keyframe can explain. Every outcome carries a reason. A
+   registration that passes every gate but the last keeps its measurement and information: the
+   loop closer holds it until a second closure confirms it (:class:`lidar3d.loop.consistency.HeldClosure`).
 
 **Covariance of the loop measurement.** Point-to-point ICP linearised at the solution has the
 Gauss-Newton information ``Σ_i A_iᵀ A_i / σ²`` with ``A_i = [-[p_i]ₓ, I₃]`` (``p_i`` the matched
@@ -91,7 +93,7 @@ class LoopVerification:
         correction_m: ‖translation‖ of ``inv(T_guess) @ T_match_query``.
         correction_deg: rotation angle of the same.
         information: (6,6) information of ``T_match_query`` (GTSAM order: rot, trans), zero unless
-            accepted.
+            accepted or rejected only for a large correction.
         n_source: points in the source cloud after downsampling.
         n_target: points in the target cloud.
     """
@@ -370,28 +372,28 @@ def verify_loop(
         return _rejected(Verdict.HIGH_RMSE, f"inlier RMSE {rmse:.3f} m > {config.max_rmse_m:g} m", *sizes, **metrics)
     if overlap < config.min_overlap:
         return _rejected(Verdict.LOW_OVERLAP, f"overlap {overlap:.3f} < {config.min_overlap:g}", *sizes, **metrics)
-    if correction_m > limit_m or correction_deg > config.max_correction_deg:
-        return _rejected(
-            Verdict.LARGE_CORRECTION,
-            f"ICP moved {correction_m:.2f} m / {correction_deg:.1f} deg from the guess "
-            f"(limit {limit_m:.2f} m / {config.max_correction_deg:g} deg)",
-            T,
-            n_source,
-            n_target,
-            **metrics,
-        )
-    matched = source[matched_source]
+    quality = f"fitness {fitness:.3f}, RMSE {rmse:.3f} m, overlap {overlap:.3f}"
     information = loop_information(
-        matched,
+        source[matched_source],
         rmse,
         effective_points=config.information_points,
         min_sigma_rotation_rad=np.radians(config.min_sigma_rotation_deg),
         min_sigma_translation_m=config.min_sigma_translation_m,
     )
+    if correction_m > limit_m or correction_deg > config.max_correction_deg:
+        # A good registration the estimate cannot vouch for: its measurement and information are
+        # kept, so that the loop closer can hold it until a second closure confirms it.
+        verdict = Verdict.LARGE_CORRECTION
+        reason = (
+            f"ICP moved {correction_m:.2f} m / {correction_deg:.1f} deg from the guess "
+            f"(limit {limit_m:.2f} m / {config.max_correction_deg:g} deg); {quality}"
+        )
+    else:
+        verdict = Verdict.ACCEPTED
+        reason = f"{quality}, correction {correction_m:.2f} m / {correction_deg:.1f} deg"
     return LoopVerification(
-        verdict=Verdict.ACCEPTED,
-        reason=f"fitness {fitness:.3f}, RMSE {rmse:.3f} m, overlap {overlap:.3f}, "
-        f"correction {correction_m:.2f} m / {correction_deg:.1f} deg",
+        verdict=verdict,
+        reason=reason,
         T_match_query=T,
         information=information,
         n_source=n_source,
