@@ -43,6 +43,7 @@ for entry in (str(REPO), str(HERE)):
     if entry not in sys.path:
         sys.path.insert(0, entry)
 
+from closure_check import check_closures  # noqa: E402
 from health_check import check_health  # noqa: E402
 from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: E402
 from suite_metrics import loop_closures, score_trajectory  # noqa: E402
@@ -190,6 +191,11 @@ def evaluate_run(record: dict, case: CachedScenario, out_dir: Path, method: str)
             record["health"] = check_health(out_dir, case.ground_truth_dense)
         except Lidar3dError as err:  # reported in the health table, never hides the other scores
             record["health"] = {"error": str(err)}
+        if (out_dir / "pose_graph.g2o").is_file():
+            try:
+                record["closures"] = check_closures(out_dir, case.ground_truth_dense)
+            except Lidar3dError as err:
+                record["closures"] = {"error": str(err)}
 
 
 # --- header facts ------------------------------------------------------------------------------

@@ -79,6 +79,12 @@ def _loops_text(row: dict) -> str:
     value = row.get("loop_closures")
     revisits = row.get("case", {}).get("revisit_events")
     context = "" if revisits is None else f" ({revisits} revisit{'s' if revisits != 1 else ''} in the drive)"
+    check = row.get("closures") or {}
+    if check.get("worst_m") is not None:
+        context += f"; worst {100 * check['worst_m']:.1f} cm / {check['worst_deg']:.2f}°"
+    loop_ms, wall_s = _get(row, "run", "loop_ms_total"), _get(row, "run", "wall_s")
+    if loop_ms is not None and wall_s:
+        context += f"; {loop_ms / 10 / wall_s:.1f} % of the run"
     return (DASH if value is None else str(value)) + context
 
 
@@ -467,7 +473,9 @@ def notes_lines(header: dict) -> list[str]:
         "The ratio is lidar3d's wall time over the peer's (above 1: lidar3d is slower).",
         "* Loop closures: accepted loop closures as lidar3d's `counts` report them (`–` while the pipeline "
         "reports none), beside the number of revisits the simulator lists for the drive (places passed "
-        "again more than 30 s later within 5 m); the peers are odometry only.",
+        "again more than 30 s later within 5 m), the worst loop measurement against the truth "
+        "(`eval/closure_check.py`; issue 16's target: 20 cm / 1°) and the share of lidar3d's wall time spent "
+        "in loop closure (`loop_ms_total`; target at most 10 %); the peers are odometry only.",
         "",
         f"Reproduce: `make bench` (all scenarios, full length), or `{header['quick_command']}` for a quick look. "
         "Raw results, per-run outputs and SPAN reports: `eval/results/<run>/`.",

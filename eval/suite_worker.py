@@ -91,6 +91,7 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool 
         "composite_ms": _stage_stats(per_scan),
         "stage_ms_median_summary": summary.stage_ms_median.as_dict(),
         "counts": summary.counts.as_dict(),
+        "loop_ms_total": summary.loop_ms_total,
         "keyframes": summary.keyframes,
         "warnings": list(summary.warnings),
         "health": summary.health.as_dict() if summary.health is not None else None,

@@ -1,0 +1,91 @@
+"""``eval/closure_check.py``: each loop measurement of a run folder scored against the truth."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lidar3d.errors import Lidar3dError
+from lidar3d.io.trajectory_io import write_tum
+from lidar3d.loop.pose_graph import GraphEdge, format_g2o
+from lidar3d.mapping.se3 import exp_se3, invert
+from lidar3d.records import Trajectory
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "eval"))
+from closure_check import check_closures  # noqa: E402
+from closure_check import main as closure_check_main  # noqa: E402
+from suite_report import _loops_text  # noqa: E402
+
+S = 1_000_000_000
+
+
+def _circle(stamps_ns: np.ndarray) -> np.ndarray:
+    """(N,4,4) true poses on a 20 m circle, facing along it, one turn in 100 s."""
+    angle = 2 * np.pi * (stamps_ns - stamps_ns[0]) / (100 * S)
+    T = np.repeat(np.eye(4)[None], len(stamps_ns), axis=0)
+    T[:, 0, 0] = T[:, 1, 1] = np.cos(angle + np.pi / 2)
+    T[:, 1, 0] = np.sin(angle + np.pi / 2)
+    T[:, 0, 1] = -T[:, 1, 0]
+    T[:, :3, 3] = np.column_stack([20 * np.cos(angle), 20 * np.sin(angle), np.zeros_like(angle)])
+    return T
+
+
+def _run(tmp_path: Path, loop_errors: list[np.ndarray]) -> tuple[Path, Path]:
+    """A run folder with keyframes every 5 s of a 110 s drive and a loop edge per error (keyframe
+    20 + i against keyframe i, its measurement the truth times the error); and the truth file."""
+    truth_stamps = np.arange(0, 111 * S, S // 10, dtype=np.int64) + 1_700_000_000 * S
+    truth = _circle(truth_stamps)
+    keyframe_stamps = truth_stamps[::50]
+    keyframes = truth[::50]
+    run = tmp_path / "run"
+    run.mkdir()
+    write_tum(run / "keyframes_tum.txt", Trajectory(keyframe_stamps, keyframes))
+    write_tum(tmp_path / "truth.txt", Trajectory(truth_stamps, truth))
+    edges = [
+        GraphEdge(k - 1, k, invert(keyframes[k - 1]) @ keyframes[k], np.eye(6), "odometry")
+        for k in range(1, len(keyframes))
+    ]
+    for i, error in enumerate(loop_errors):
+        T_true = invert(keyframes[i]) @ keyframes[20 + i]
+        edges.append(GraphEdge(i, 20 + i, T_true @ error, np.eye(6), "loop"))
+    (run / "pose_graph.g2o").write_text(format_g2o(keyframes, edges), encoding="utf-8")
+    return run, tmp_path / "truth.txt"
+
+
+def test_closure_errors_against_the_truth(tmp_path, capsys):
+    small = exp_se3(np.array([0.03, 0.0, 0.0, 0.0, 0.0, np.radians(0.1)]))  # (v, w)
+    slid = exp_se3(np.array([0.0, 0.25, 0.0, 0.0, 0.0, 0.0]))  # 25 cm sideways
+    run, truth = _run(tmp_path, [small, slid])
+    report = check_closures(run, truth)
+    assert report["closures"] == 2 and not report["met"]
+    assert report["worst_m"] == pytest.approx(0.25, abs=1e-3)
+    assert report["worst_deg"] == pytest.approx(0.1, abs=1e-3)
+    first = report["edges"][0]
+    assert (first["query"], first["match"]) == (20, 0)
+    assert first["error_m"] == pytest.approx(0.03, abs=1e-3)
+    assert closure_check_main([str(run), str(truth)]) == 2
+    assert "worst 25.0 cm" in capsys.readouterr().out
+    text = _loops_text(
+        {"method": "lidar3d", "loop_closures": 2, "closures": report, "run": {"wall_s": 10.0, "loop_ms_total": 500.0}}
+    )
+    assert text == "2; worst 25.0 cm / 0.10°; 5.0 % of the run"
+
+
+def test_good_closures_meet_the_target_and_bad_folders_say_why(tmp_path, capsys):
+    run, truth = _run(tmp_path, [np.eye(4)])
+    report = check_closures(run, truth)
+    assert report["met"] and report["worst_m"] == pytest.approx(0.0, abs=1e-4)
+    assert closure_check_main([str(run), str(truth)]) == 0
+    with pytest.raises(Lidar3dError, match=r"no pose_graph\.g2o"):
+        check_closures(tmp_path, truth)
+    lines = (run / "pose_graph.g2o").read_text().splitlines()
+    (run / "pose_graph.g2o").write_text("\n".join(lines + ["EDGE_SE3:QUAT 0 99 0 0 0 0 0 0 1"]))
+    with pytest.raises(Lidar3dError, match=r"beyond keyframes_tum\.txt"):
+        check_closures(run, truth)
+    (run / "pose_graph.g2o").write_text("\n".join(lines + ["EDGE_SE3:QUAT 0 x"]))
+    assert closure_check_main([str(run), str(truth)]) == 1
+    assert "malformed edge" in capsys.readouterr().err
