@@ -156,24 +156,13 @@ class LoopCloser:
         """The accepted candidates (the loop closures)."""
         return [c for c in self.candidates if c.accepted]
 
-    @staticmethod
-    def _cloud(keyframe) -> np.ndarray:
-        """The keyframe's corner and surface points, fused (lidar frame, float64).
-
-        Made on demand rather than cached: only the query and one match neighbourhood are needed
-        per verification, while a cache would double the keyframes' memory on long drives.
-        """
-        return np.concatenate(
-            [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in (keyframe.corner_points, keyframe.surf_points)]
-        )
-
     def _add_keyframes(self, keyframes: Sequence, poses: np.ndarray) -> None:
         for k in range(len(self.graph), len(keyframes)):
             if keyframes[k].index != k:
                 raise ValueError(f"keyframe at position {k} has index {keyframes[k].index}")
             self._stamps_ns.append(int(keyframes[k].stamp_ns))
             if self.places is not None:
-                self.places.add(self._cloud(keyframes[k]), poses[k])
+                self.places.add(_keyframe_cloud(keyframes[k]), poses[k])
             if k == 0:
                 self.graph.add_keyframe(0, poses[0])
                 self._path_m.append(0.0)
@@ -226,7 +215,8 @@ class LoopCloser:
             )
             for match, distance in zip(found.matches.tolist(), found.distances_m.tolist()):
                 tried.add(match)
-                record = self._verify(keyframes, poses, stamps, query, match, distance)
+                limit_m = self._drift_allowance_m(query, match)
+                record = _verify(cfg, keyframes, poses, stamps, (query, match), distance, limit_m)
                 records.append(record)
                 if record.verdict is Verdict.LARGE_CORRECTION:
                     # a good registration farther from the estimate than the allowance: held until
@@ -237,7 +227,7 @@ class LoopCloser:
                         path_m,
                         moved_m=record.correction_m,
                         moved_deg=record.correction_deg,
-                        allowance_m=self._drift_allowance_m(query, match),
+                        allowance_m=limit_m,
                     )
                     break
                 if record.accepted:
@@ -252,7 +242,7 @@ class LoopCloser:
 
             def verify(match: int, guess: np.ndarray, limit_m: float) -> LoopCandidate:
                 distance = float(np.linalg.norm(poses[query, :2, 3] - poses[match, :2, 3]))
-                return self._verify(keyframes, poses, stamps, query, match, distance, guess, limit_m, "place")
+                return _verify(cfg, keyframes, poses, stamps, (query, match), distance, limit_m, guess, "place")
 
             accepted = self.places.closures(query, eligible, poses, path_m, verify, self._drift_allowance_m, records)
             accepted = keep_consistent(poses, path_m, self._recent_closure, accepted, records, cfg)
@@ -285,50 +275,6 @@ class LoopCloser:
             self._path_m[query] - self._path_m[match]
         )
 
-    def _verify(
-        self,
-        keyframes: Sequence,
-        poses: np.ndarray,
-        stamps: np.ndarray,
-        query: int,
-        match: int,
-        distance: float,
-        T_guess: np.ndarray | None = None,
-        limit_m: float | None = None,
-        source: str = "distance",
-    ) -> LoopCandidate:
-        cfg = self.config
-        gap_ns = int(round(cfg.min_time_gap_s * 1e9))
-        lo = max(0, match - cfg.submap_neighbours)
-        hi = min(query, match + cfg.submap_neighbours + 1)
-        members = np.arange(lo, hi)
-        members = members[stamps[members] <= stamps[query] - gap_ns]
-        clouds = {int(k): self._cloud(keyframes[k]) for k in members}
-        target = build_match_cloud(
-            [clouds.get(k, np.zeros((0, 3))) for k in range(hi)], poses, match, members, cfg.voxel_m
-        )
-        if T_guess is None:
-            T_guess = nearest_rigid(invert(poses[match]) @ poses[query])
-        limit = self._drift_allowance_m(query, match) if limit_m is None else limit_m
-        result = verify_loop(self._cloud(keyframes[query]), target, T_guess, cfg, max_correction_m=limit)
-        return LoopCandidate(
-            query=query,
-            match=match,
-            query_stamp_ns=int(stamps[query]),
-            match_stamp_ns=int(stamps[match]),
-            distance_m=float(distance),
-            fitness=result.fitness,
-            inlier_rmse_m=result.inlier_rmse_m,
-            overlap=result.overlap,
-            correction_m=result.correction_m,
-            correction_deg=result.correction_deg,
-            verdict=result.verdict,
-            reason=result.reason,
-            T_match_query=result.T_match_query,
-            information=result.information,
-            source=source,
-        )
-
     def final_poses(self, extra_updates: int = 10) -> np.ndarray:
         """(K,4,4) keyframe poses after ``extra_updates`` more relinearising iSAM2 steps."""
         return nearest_rigid(self.graph.optimize(extra_updates))
@@ -340,4 +286,60 @@ def _graph_rejected(record: LoopCandidate) -> LoopCandidate:
         verdict=Verdict.GRAPH_ERROR,
         reason=f"pose graph rejected the factor ({record.reason})",
         information=np.zeros((6, 6)),
+    )
+
+
+def _keyframe_cloud(keyframe) -> np.ndarray:
+    """The keyframe's corner and surface points, fused (lidar frame, float64).
+
+    Made on demand rather than cached: only the query and one match neighbourhood are needed per
+    verification, while a cache would double the keyframes' memory on long drives.
+    """
+    return np.concatenate(
+        [np.asarray(p, dtype=np.float64).reshape(-1, 3) for p in (keyframe.corner_points, keyframe.surf_points)]
+    )
+
+
+def _verify(
+    config,
+    keyframes: Sequence,
+    poses: np.ndarray,
+    stamps: np.ndarray,
+    pair: tuple[int, int],
+    distance: float,
+    limit_m: float,
+    T_guess: np.ndarray | None = None,
+    source: str = "distance",
+) -> LoopCandidate:
+    """Register keyframe ``pair[0]`` (the query) against the submap around ``pair[1]`` (the match)
+    from ``T_guess`` (the current estimate when None), ICP allowed to move it ``limit_m``."""
+    query, match = pair
+    gap_ns = int(round(config.min_time_gap_s * 1e9))
+    lo = max(0, match - config.submap_neighbours)
+    hi = min(query, match + config.submap_neighbours + 1)
+    members = np.arange(lo, hi)
+    members = members[stamps[members] <= stamps[query] - gap_ns]
+    clouds = {int(k): _keyframe_cloud(keyframes[k]) for k in members}
+    target = build_match_cloud(
+        [clouds.get(k, np.zeros((0, 3))) for k in range(hi)], poses, match, members, config.voxel_m
+    )
+    if T_guess is None:
+        T_guess = nearest_rigid(invert(poses[match]) @ poses[query])
+    result = verify_loop(_keyframe_cloud(keyframes[query]), target, T_guess, config, max_correction_m=limit_m)
+    return LoopCandidate(
+        query=query,
+        match=match,
+        query_stamp_ns=int(stamps[query]),
+        match_stamp_ns=int(stamps[match]),
+        distance_m=float(distance),
+        fitness=result.fitness,
+        inlier_rmse_m=result.inlier_rmse_m,
+        overlap=result.overlap,
+        correction_m=result.correction_m,
+        correction_deg=result.correction_deg,
+        verdict=result.verdict,
+        reason=result.reason,
+        T_match_query=result.T_match_query,
+        information=result.information,
+        source=source,
     )
