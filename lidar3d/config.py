@@ -388,6 +388,9 @@ class MappingConfig:
         1.0, _closed(0.0, 1000.0, "m"), "new keyframe after this distance (surroundingkeyframeAddingDistThreshold)"
     )
     keyframe_angle_deg: float = _key(11.46, _closed(0.0, 180.0, "deg"), "... or this rotation (LIO-SAM 0.2 rad)")
+    moving_probe_keyframes: int = _key(
+        8, _closed(0, 1000), "points the latest keyframes saw through are not registered (0: off; [dynamic] vote)"
+    )
     submap_radius_m: float = _key(50.0, _positive(10000.0, "m"), "keyframes this near form the submap")
     submap_max_keyframes: int = _key(60, _closed(1, 100_000), "nearest keyframes in the submap at most")
     submap_recent_keyframes: int = _key(10, _closed(0, 100_000), "latest keyframes always in the submap")

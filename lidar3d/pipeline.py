@@ -192,6 +192,7 @@ class SlamPipeline:
         is_keyframe = self.keyframe_selector.is_due(track.T_world_lidar, sweep.n_surface_points)
         if is_keyframe:
             self.keyframe_selector.anchor(track.T_world_lidar)
+            self.tracker.remember_keyframe(track.T_world_lidar)
         clock = StageClock()
         with clock("map_update"):
             T_world_lidar = track.T_world_lidar

@@ -120,16 +120,23 @@ class SweepProbe:
     @classmethod
     def of(cls, sweep: PlacedSweep, n_rings: int, n_bins: int) -> SweepProbe:
         """The probe of ``sweep``: each point into pixel (ring, azimuth bin), the nearest one kept."""
-        points = sweep.points_lidar
+        return cls.of_points(sweep.points_lidar, sweep.ring, sweep.T_world_lidar, n_rings, n_bins)
+
+    @classmethod
+    def of_points(
+        cls, points_lidar: np.ndarray, ring: np.ndarray, T_world_lidar: np.ndarray, n_rings: int, n_bins: int
+    ) -> SweepProbe:
+        """The probe of (N,3) deskewed lidar-frame points with their (N,) rings, at pose (4,4)."""
+        points = np.asarray(points_lidar, dtype=np.float64)
         range_m = np.linalg.norm(points, axis=1)
         column = _azimuth_bin(points, n_bins)
-        pixel = sweep.ring.astype(np.int64) * n_bins + column
+        pixel = np.asarray(ring).astype(np.int64) * n_bins + column
         order = np.argsort(-range_m, kind="stable")  # nearest written last wins
         image_points = np.zeros((n_rings * n_bins, 3), np.float32)
         image_range = np.zeros(n_rings * n_bins, np.float32)
         image_points[pixel[order]] = points[order]
         image_range[pixel[order]] = range_m[order]
-        T = sweep.T_world_lidar
+        T = T_world_lidar
         grid_points = image_points.reshape(n_rings, n_bins, 3)
         grid_range = image_range.reshape(n_rings, n_bins)
         return cls(T[:3, 3].copy(), T[:3, :3].copy(), grid_points, grid_range, sin_grazing(grid_points, grid_range))

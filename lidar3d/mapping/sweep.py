@@ -57,6 +57,28 @@ class SweepFeatures:
         )
         return SweepFeatures(deskew_features(self.features, twist), ground)
 
+    def without(self, moving: dict[str, np.ndarray]) -> SweepFeatures:
+        """The sweep without the points marked in ``moving``: feature cloud name (``sharp``,
+        ``less_sharp``, ``flat``, ``less_flat``, ``outliers``) -> (M,) bool; the ground is kept."""
+        f = self.features
+
+        def kept(name: str) -> FeatureCloud:
+            cloud = getattr(f, name)
+            if name not in moving:
+                return cloud
+            keep = ~np.asarray(moving[name], dtype=bool)
+            return FeatureCloud(cloud.points[keep], cloud.ring[keep], cloud.time_offset_s[keep])
+
+        features = FeatureSet(
+            stamp_ns=f.stamp_ns,
+            sharp=kept("sharp"),
+            less_sharp=kept("less_sharp"),
+            flat=kept("flat"),
+            less_flat=kept("less_flat"),
+            outliers=kept("outliers"),
+        )
+        return SweepFeatures(features, self.ground)
+
     def registration_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray]:
         """(M,3) corner and (K,3) surface clouds, voxel-downsampled with the map's voxel sizes."""
         f = self.features

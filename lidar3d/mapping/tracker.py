@@ -37,11 +37,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from lidar3d.config import Config, MotionConfig
+from lidar3d.config import Config, MappingConfig, MotionConfig
 from lidar3d.features.frontend import PreparedScan
 from lidar3d.mapping.deskew import twist_between
 from lidar3d.mapping.keyframes import Submap
 from lidar3d.mapping.motion_model import MotionModel, nominal_step_information
+from lidar3d.mapping.moving_points import MovingPoints
 from lidar3d.mapping.odometry import OdometryStep, ScanToScanOdometry
 from lidar3d.mapping.registration import PosePrior, SolveResult, observed_share
 from lidar3d.mapping.scan_to_map import register_to_submap
@@ -170,6 +171,7 @@ class Tracker:
         self._submap = submap
         self._motion = MotionModel.of_config(config.motion)
         self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
+        self._moving = MovingPoints.of_config(config)
         self._latest: _Latest | None = None
         self._motion_known = False  # the motion model has learned a twist
         self._unsettled: _Unsettled | None = None
@@ -187,6 +189,10 @@ class Tracker:
         predicted = self._motion.prediction()
         with clock("deskew"):
             deskewed = sweep.deskewed(predicted)
+        if self._moving is not None:
+            with clock("mapping"):
+                guess = previous.T_world_lidar @ exp_se3(predicted * dt_s) if previous else None
+                sweep, deskewed = self._moving.without_moving(sweep, deskewed, guess)
         with clock("odometry"):
             step = self._odometry.update(deskewed.features, exp_se3(predicted * dt_s))
         T_world_odom = previous.T_world_odom @ step.T_prev_curr if previous else np.eye(4)
@@ -243,6 +249,11 @@ class Tracker:
             odometry_step=step,
         )
 
+    def remember_keyframe(self, T_world_lidar: np.ndarray) -> None:
+        """The scan just tracked is a keyframe at (4,4) ``T_world_lidar``: its rays test the next scans."""
+        if self._moving is not None:
+            self._moving.add_keyframe(T_world_lidar)
+
     def finish(self) -> SettledSweep | None:
         """End of input: the last sweep, settled with the latest motion (no re-registration);
         None when there is none left."""
@@ -254,6 +265,8 @@ class Tracker:
     def apply_correction(self, correction: np.ndarray) -> None:
         """A loop closure moved the world under the latest scan: left-multiply its pose (and the
         unsettled sweep's, the same scan) by the (4,4) world-frame ``correction``."""
+        if self._moving is not None:
+            self._moving.clear()
         if (latest := self._latest) is not None:
             self._latest = replace(
                 latest,
@@ -262,34 +275,6 @@ class Tracker:
             )
         if self._unsettled is not None:
             self._unsettled = replace(self._unsettled, T_world_lidar=correction @ self._unsettled.T_world_lidar)
-
-    def _register(
-        self,
-        deskewed: SweepFeatures,
-        T_world_lidar: np.ndarray,
-        iterations: int,
-        prior: PosePrior | None,
-        reference_information: np.ndarray,
-        widen_search: bool,
-    ) -> SolveResult:
-        """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar``, fused with
-        ``prior`` when given; a direction the rows know less well than the (6, 6)
-        ``reference_information`` is degenerate (see :func:`register_to_submap`)."""
-        mp = self._mapping
-        corner, surf = deskewed.registration_clouds(mp)
-        surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
-        target = self._submap.target(T_world_lidar[:3, 3])
-        return register_to_submap(
-            target,
-            corner,
-            surf,
-            T_world_lidar,
-            mp,
-            iterations,
-            prior,
-            reference_information=reference_information,
-            widen_search=widen_search,
-        )
 
     def _reference(self, vehicle: PosePrior | None) -> np.ndarray:
         """(6, 6) what a scan's rows are judged against: the vehicle prior's information once the
@@ -324,8 +309,15 @@ class Tracker:
             prior = _moved_prior(at_reference, -offset_s, twist)
         heading = _odometry_heading(T_world_lidar, step, self._heading_shortfall) if self._fuse_heading else None
         fused = _fused(prior, heading, T_world_lidar, self._vehicle)
-        refined = self._register(
-            deskewed, T_world_lidar, self._mapping.max_iterations, fused, self._reference(prior), prior is not None
+        refined = _register(
+            self._submap,
+            self._mapping,
+            deskewed,
+            T_world_lidar,
+            self._mapping.max_iterations,
+            fused,
+            self._reference(prior),
+            prior is not None,
         )
         if refined.iterations == 0:
             return _Refinement(T_world_lidar, step.used_motion_model, None)
@@ -346,12 +338,47 @@ class Tracker:
         if not unsettled.registered or moved_m * self._sweep_period_s < mp.redeskew_threshold_m:
             return kept
         guess = _kept_at_reference(unsettled, twist)
-        refined = self._register(
-            unsettled.sweep.deskewed(twist), guess, mp.redeskew_iterations, None, unsettled.reference_information, False
+        refined = _register(
+            self._submap,
+            self._mapping,
+            unsettled.sweep.deskewed(twist),
+            guess,
+            mp.redeskew_iterations,
+            None,
+            unsettled.reference_information,
+            False,
         )
         if refined.iterations == 0 or refined.degenerate_axes:
             return kept
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
+
+
+def _register(
+    submap: Submap,
+    mp: MappingConfig,
+    deskewed: SweepFeatures,
+    T_world_lidar: np.ndarray,
+    iterations: int,
+    prior: PosePrior | None,
+    reference_information: np.ndarray,
+    widen_search: bool,
+) -> SolveResult:
+    """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar``, fused with ``prior``
+    when given; a direction the rows know less well than the (6, 6) ``reference_information`` is
+    degenerate (see :func:`register_to_submap`)."""
+    corner, surf = deskewed.registration_clouds(mp)
+    surf = voxel_downsample(surf, mp.scan_surf_voxel_m)
+    return register_to_submap(
+        submap.target(T_world_lidar[:3, 3]),
+        corner,
+        surf,
+        T_world_lidar,
+        mp,
+        iterations,
+        prior,
+        reference_information=reference_information,
+        widen_search=widen_search,
+    )
 
 
 def _scan_to_scan_odometry(config: Config) -> ScanToScanOdometry:
