@@ -40,6 +40,7 @@ from lidar3d.mapping.dense_map import DenseMap, MapClouds
 from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
 from lidar3d.mapping.map_pieces import MapPieces, PieceStore
+from lidar3d.mapping.moving_points import MovingPoints
 from lidar3d.mapping.pose_uncertainty import PoseUncertainty
 from lidar3d.mapping.step_uncertainty import StepUncertainty
 from lidar3d.mapping.sweep import SweepFeatures
@@ -139,7 +140,8 @@ class SlamPipeline:
         self.config = config
         mp = config.mapping
         self.submap = Submap.of_config(mp)
-        self.tracker = Tracker(config, self.submap)
+        self.moving_points = MovingPoints.of_config(config)
+        self.tracker = Tracker(config, self.submap, self.moving_points)
         self.keyframe_selector = KeyframeSelector(
             distance_m=mp.keyframe_distance_m, angle_deg=mp.keyframe_angle_deg, min_surface_points=mp.min_rows
         )
@@ -183,6 +185,8 @@ class SlamPipeline:
             track.T_world_lidar, dt_s, rows_information, track.prior.information if track.prior is not None else None
         )
         pose_covariance = self._pose_uncertainty.add(track.T_world_lidar, dt_s, rows_information)
+        if self.moving_points is not None:
+            self.moving_points.note_pose_covariance(pose_covariance)
         health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health, pose_covariance))
         self.stats.add_timings(track.timings_ms)
         if track.registration is not None and track.registration.degenerate_axes:
@@ -192,7 +196,8 @@ class SlamPipeline:
         is_keyframe = self.keyframe_selector.is_due(track.T_world_lidar, sweep.n_surface_points)
         if is_keyframe:
             self.keyframe_selector.anchor(track.T_world_lidar)
-            self.tracker.remember_keyframe(track.T_world_lidar)
+            if self.moving_points is not None:
+                self.moving_points.add_keyframe(track.T_world_lidar)
         clock = StageClock()
         with clock("map_update"):
             T_world_lidar = track.T_world_lidar
@@ -317,6 +322,8 @@ class SlamPipeline:
         """Move the keyframes to their corrected poses and every scan pose with them."""
         self.stats.count("loop_closures", len(update.closures))
         self.submap.set_poses(update.poses)
+        if self.moving_points is not None:
+            self.moving_points.clear()  # the keyframes whose rays it holds moved
         keyframe_stamps = np.array([kf.stamp_ns for kf in self.submap.keyframes], dtype=np.int64)
         before = self._trajectory()
         corrected = correct_scan_poses(

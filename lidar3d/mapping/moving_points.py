@@ -25,6 +25,8 @@ After a loop closure the keyframes moved, so the probes are dropped and gathered
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from lidar3d.config import Config, DynamicConfig
@@ -54,6 +56,7 @@ class MovingPoints:
         self._n_slots = int(n_keyframes)
         self._n_added = 0
         self._returns: SweepFeatures | None = None  # the latest sweep, deskewed, nothing removed
+        self._pose_sigma_m = 0.0
 
     @classmethod
     def of_config(cls, config: Config) -> MovingPoints | None:
@@ -82,6 +85,17 @@ class MovingPoints:
         self._stack.put(self._n_added % self._n_slots, probe)
         self._n_added += 1
 
+    def note_pose_covariance(self, covariance: np.ndarray | None) -> None:
+        """The latest pose's (6,6) covariance relative to the map (tangent ``[w, v]``, lidar frame;
+        :class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`): the next sweep, placed at a
+        guess at least this uncertain, is seen through only beyond three of its largest
+        translation sigmas more (a drifting guess must not take the structure that would correct
+        it for a moving object)."""
+        if covariance is None or not np.isfinite(covariance).all():
+            self._pose_sigma_m = 0.0
+            return
+        self._pose_sigma_m = float(np.sqrt(max(np.linalg.eigvalsh(covariance[3:, 3:]).max(), 0.0)))
+
     def clear(self) -> None:
         """Forget the images (the keyframes moved: a loop closure)."""
         self._n_added = 0
@@ -94,7 +108,9 @@ class MovingPoints:
         if n == 0 or len(self) < self.config.min_misses:
             return np.zeros(n, bool)
         world = np.asarray(points_lidar, dtype=np.float64) @ T_world_lidar[:3, :3].T + T_world_lidar[:3, 3]
-        hits, misses = voxel_evidence(world, self._stack, np.arange(len(self)), self._elevation_rad, self.config)
+        margin_m = self.config.range_margin_m + 3.0 * self._pose_sigma_m
+        config = dataclasses.replace(self.config, range_margin_m=margin_m)
+        hits, misses = voxel_evidence(world, self._stack, np.arange(len(self)), self._elevation_rad, config)
         return (misses >= self.config.min_misses) & (misses >= self.config.miss_ratio * hits)
 
     def without_moving(

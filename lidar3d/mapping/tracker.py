@@ -159,9 +159,11 @@ class Tracker:
     Args:
         config: the run's configuration (``sensor``, ``odometry`` and ``mapping`` sections).
         submap: the keyframe submap to register against (read only; the pipeline adds keyframes).
+        moving: the moving-point test whose points are kept out of the registration (the pipeline
+            gives it the keyframes and the pose uncertainty), None for none.
     """
 
-    def __init__(self, config: Config, submap: Submap) -> None:
+    def __init__(self, config: Config, submap: Submap, moving: MovingPoints | None = None) -> None:
         self._sweep_period_s = config.sensor.resolved_model.sweep_period_s
         self._mapping = config.mapping
         self._vehicle = config.motion
@@ -171,7 +173,7 @@ class Tracker:
         self._submap = submap
         self._motion = MotionModel.of_config(config.motion)
         self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
-        self._moving = MovingPoints.of_config(config)
+        self._moving = moving
         self._latest: _Latest | None = None
         self._motion_known = False  # the motion model has learned a twist
         self._unsettled: _Unsettled | None = None
@@ -249,11 +251,6 @@ class Tracker:
             odometry_step=step,
         )
 
-    def remember_keyframe(self, T_world_lidar: np.ndarray) -> None:
-        """The scan just tracked is a keyframe at (4,4) ``T_world_lidar``: its rays test the next scans."""
-        if self._moving is not None:
-            self._moving.add_keyframe(T_world_lidar)
-
     def finish(self) -> SettledSweep | None:
         """End of input: the last sweep, settled with the latest motion (no re-registration);
         None when there is none left."""
@@ -265,8 +262,6 @@ class Tracker:
     def apply_correction(self, correction: np.ndarray) -> None:
         """A loop closure moved the world under the latest scan: left-multiply its pose (and the
         unsettled sweep's, the same scan) by the (4,4) world-frame ``correction``."""
-        if self._moving is not None:
-            self._moving.clear()
         if (latest := self._latest) is not None:
             self._latest = replace(
                 latest,
