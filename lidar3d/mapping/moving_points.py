@@ -116,15 +116,14 @@ class MovingPoints:
     def without_moving(
         self, sweep: SweepFeatures, deskewed: SweepFeatures, T_world_guess: np.ndarray | None
     ) -> tuple[SweepFeatures, SweepFeatures]:
-        """The sweep, as fired and ``deskewed``, without the points of its registration clouds
-        (``less_sharp``, ``less_flat``, ``outliers``; not the ground) that are :meth:`moving` when
-        placed at the (4,4) guess ``T_world_guess`` (None: the first sweep, nothing to test
-        against); the sweep is remembered for :meth:`add_keyframe`."""
+        """The sweep, as fired and ``deskewed``, without the feature points (every cloud but the
+        ground) that are :meth:`moving` when placed at the (4,4) guess ``T_world_guess`` (None:
+        the first sweep, nothing to test against); the sweep is remembered for :meth:`add_keyframe`."""
         self._returns = deskewed
         if T_world_guess is None:
             return sweep, deskewed
         f = deskewed.features
-        names = ("less_sharp", "less_flat", "outliers")
+        names = ("sharp", "less_sharp", "flat", "less_flat", "outliers")
         moving = {name: self.moving(getattr(f, name).points, T_world_guess) for name in names}
         if not any(m.any() for m in moving.values()):
             return sweep, deskewed

@@ -191,13 +191,13 @@ class Tracker:
         predicted = self._motion.prediction()
         with clock("deskew"):
             deskewed = sweep.deskewed(predicted)
+        if self._moving is not None:
+            with clock("mapping"):
+                guess = previous.T_world_lidar @ exp_se3(predicted * dt_s) if previous else None
+                sweep, deskewed = self._moving.without_moving(sweep, deskewed, guess)
         with clock("odometry"):
             step = self._odometry.update(deskewed.features, exp_se3(predicted * dt_s))
         T_world_odom = previous.T_world_odom @ step.T_prev_curr if previous else np.eye(4)
-        if self._moving is not None:  # placed where the scan-to-scan step puts it: it sees a turn begin
-            with clock("mapping"):
-                guess = previous.T_world_lidar @ step.T_prev_curr if previous else None
-                sweep, deskewed = self._moving.without_moving(sweep, deskewed, guess)
         with clock("mapping"):
             refinement = self._refine(deskewed, previous, step, reference_dt_s, offset_s, predicted)
         T_world_lidar = refinement.T_world_lidar
