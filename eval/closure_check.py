@@ -19,7 +19,6 @@ Usage::
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -29,6 +28,8 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
+
+from check_cli import report_and_exit_code  # noqa: E402
 
 from lidar3d.errors import Lidar3dError  # noqa: E402
 
@@ -149,15 +150,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("truth", type=Path, help="true poses: a TUM file or a simulation folder")
     parser.add_argument("--json", type=Path, metavar="FILE", help="also write the report as JSON")
     args = parser.parse_args(argv)
-    try:
-        report = check_closures(args.run_dir, args.truth)
-    except Lidar3dError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
-    print(format_report(report))
-    if args.json is not None:
-        args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-    return 0 if report["met"] else 2
+    return report_and_exit_code(
+        lambda: check_closures(args.run_dir, args.truth), format_report, lambda report: bool(report["met"]), args.json
+    )
 
 
 if __name__ == "__main__":

@@ -23,7 +23,6 @@ of ``BENCHMARKS.md``).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -33,6 +32,8 @@ HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
 if str(REPO) not in sys.path:
     sys.path.insert(0, str(REPO))
+
+from check_cli import report_and_exit_code  # noqa: E402
 
 from lidar3d.errors import Lidar3dError  # noqa: E402
 
@@ -154,15 +155,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-error", type=float, default=0.3, metavar="M", help="bad above this error, m (0.3)")
     parser.add_argument("--json", type=Path, metavar="FILE", help="also write the report as JSON")
     args = parser.parse_args(argv)
-    try:
-        report = check_health(args.run_dir, args.truth, segment_m=args.segment, max_error_m=args.max_error)
-    except Lidar3dError as err:
-        print(f"error: {err}", file=sys.stderr)
-        return 1
-    print(format_report(report))
-    if args.json is not None:
-        args.json.write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
-    return 0 if report["recall_met"] and report["false_flag_met"] else 2
+    return report_and_exit_code(
+        lambda: check_health(args.run_dir, args.truth, segment_m=args.segment, max_error_m=args.max_error),
+        format_report,
+        lambda report: bool(report["recall_met"] and report["false_flag_met"]),
+        args.json,
+    )
 
 
 if __name__ == "__main__":
