@@ -389,7 +389,7 @@ class MappingConfig:
     )
     keyframe_angle_deg: float = _key(11.46, _closed(0.0, 180.0, "deg"), "... or this rotation (LIO-SAM 0.2 rad)")
     moving_probe_keyframes: int = _key(
-        8, _closed(0, 1000), "points the latest keyframes saw through are not registered (0: off; [dynamic] vote)"
+        0, _closed(0, 1000), "points this many latest keyframes saw through are not registered (0: off; try 8)"
     )
     submap_radius_m: float = _key(50.0, _positive(10000.0, "m"), "keyframes this near form the submap")
     submap_max_keyframes: int = _key(60, _closed(1, 100_000), "nearest keyframes in the submap at most")

@@ -12,6 +12,7 @@ from lidar3d.mapping.moving_points import MovingPoints
 from lidar3d.mapping.sweep import SweepFeatures
 
 MODEL = Config().sensor.resolved_model
+CONFIG = dataclasses.replace(Config(), mapping=dataclasses.replace(MappingConfig(), moving_probe_keyframes=8))
 
 
 def _ray(ring: int, azimuth_deg: float, range_m: float) -> np.ndarray:
@@ -41,7 +42,7 @@ def _wall_sweep() -> SweepFeatures:
 
 
 def _probes(n_keyframes: int = 4) -> MovingPoints:
-    moving = MovingPoints.of_config(Config())
+    moving = MovingPoints.of_config(CONFIG)
     assert moving is not None
     for _ in range(n_keyframes):  # keyframes at the origin, all seeing the wall
         moving.without_moving(_wall_sweep(), _wall_sweep(), None)
@@ -87,11 +88,9 @@ def test_without_moving_drops_the_moving_points_and_keeps_the_ground():
     assert unchanged == (sweep, sweep)
 
 
-def test_the_test_can_be_switched_off():
-    config = Config()
-    off = dataclasses.replace(config, mapping=dataclasses.replace(MappingConfig(), moving_probe_keyframes=0))
-    assert MovingPoints.of_config(off) is None
-    assert MovingPoints.of_config(config) is not None
+def test_the_test_is_off_unless_asked_for():
+    assert MovingPoints.of_config(Config()) is None
+    assert MovingPoints.of_config(CONFIG) is not None
 
 
 def test_an_uncertain_pose_needs_more_than_its_uncertainty_to_see_through():
