@@ -19,6 +19,12 @@ hit), or was hidden (no evidence). What the test cannot see: an object moving aw
 sensor fills space that its own back hid (a lead car pulling away); new structure at the edge of
 the view has no evidence and is kept. Ground points are never tested (rays skim the road).
 
+The margin grows by three of the largest translation sigmas of the pose's uncertainty relative to
+the map (:meth:`MovingPoints.note_pose_covariance`): a drifting guess must not take the structure
+that would correct it for a moving object. Off by default (``moving_probe_keyframes`` = 0): a turn's
+onset, which the prediction does not expect, still makes static points look moving, and on the
+held-out drives that cost more than the moving objects did (docs/stages/odometry-mapping.md).
+
 Frames: the sweep's points in its deskewed lidar frame at the stamp; poses ``T_world_lidar``.
 After a loop closure the keyframes moved, so the probes are dropped and gathered again.
 """
