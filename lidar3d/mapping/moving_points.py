@@ -130,7 +130,9 @@ class MovingPoints:
             return sweep, deskewed
         f = deskewed.features
         names = ("sharp", "less_sharp", "flat", "less_flat", "outliers")
-        moving = {name: self.moving(getattr(f, name).points, T_world_guess) for name in names}
-        if not any(m.any() for m in moving.values()):
+        clouds = [getattr(f, name).points for name in names]
+        flags = self.moving(np.concatenate(clouds), T_world_guess)  # one pass over the probes
+        if not flags.any():
             return sweep, deskewed
+        moving = dict(zip(names, np.split(flags, np.cumsum([len(c) for c in clouds])[:-1])))
         return sweep.without(moving), deskewed.without(moving)
