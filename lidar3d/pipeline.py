@@ -37,7 +37,7 @@ from lidar3d.loop.closer import LoopCloser, LoopUpdate, correct_scan_poses
 from lidar3d.loop.records import LoopCandidate
 from lidar3d.map_process import DenseMapProcess
 from lidar3d.mapping.dense_map import DenseMap, MapClouds
-from lidar3d.mapping.health import HealthMonitor, ScanHealth, scan_measures, summarize_health
+from lidar3d.mapping.health import HealthFlag, HealthMonitor, ScanHealth, scan_measures, summarize_health
 from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
 from lidar3d.mapping.map_pieces import MapPieces, PieceStore
 from lidar3d.mapping.moving_points import MovingPoints
@@ -161,12 +161,10 @@ class SlamPipeline:
 
     def process(self, scan: Scan | PreparedScan) -> ScanEstimate | None:
         """Track one scan; returns its estimate as known now, or None when the scan is dropped
-        (stamp not after the previous one's).
-
-        ``scan`` may come already through the front end (:func:`prepare_scan`, an adapter may run
-        it ahead in another process). The next scan may still revise the returned pose and a loop
-        closure correct it; :meth:`result` has the poses as they end up.
-        """
+        (stamp not after the previous one's). ``scan`` may come already through the front end
+        (:func:`prepare_scan`, an adapter may run it ahead in another process). The next scan may
+        still revise the returned pose and a loop closure correct it; :meth:`result` has the poses
+        as they end up."""
         index = self._n_seen
         self._n_seen += 1
         stamp_ns = scan.scan.stamp_ns if isinstance(scan, PreparedScan) else scan.stamp_ns
@@ -187,7 +185,9 @@ class SlamPipeline:
         pose_covariance = self._pose_uncertainty.add(track.T_world_lidar, dt_s, rows_information)
         if self.moving_points is not None:
             self.moving_points.note_pose_covariance(pose_covariance)
-        health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health, pose_covariance))
+        on_lost = self.submap.lost_keyframes_in_target()  # keyframes its submap holds placed while lost
+        measures = scan_measures(track, previous, self.config.health, pose_covariance, on_lost)
+        health = self.health.assess(stamp_ns, measures)
         self.stats.add_timings(track.timings_ms)
         if track.registration is not None and track.registration.degenerate_axes:
             self.stats.count("degenerate_scans")
@@ -209,9 +209,8 @@ class SlamPipeline:
                 if is_keyframe:
                     self.keyframe_selector.anchor(T_world_lidar)
             if is_keyframe and not len(self.submap):
-                # The first keyframe enters at once (the submap is empty); :meth:`_settle` deskews
-                # it properly once its motion is known.
-                self._add_keyframe(index, stamp_ns, T_world_lidar, sweep.deskewed(track.deskew_twist))
+                # The first keyframe enters at once (empty submap); _settle deskews it once its motion is known.
+                self._add_keyframe(index, stamp_ns, T_world_lidar, sweep.deskewed(track.deskew_twist), health)
         self.stats.add_timings(clock.ms)
         estimate = ScanEstimate(
             index, stamp_ns, T_world_lidar, track.T_world_odom, is_keyframe, track.motion_model_only, health
@@ -238,13 +237,11 @@ class SlamPipeline:
 
     def result(self, partial: bool = False, *, with_map: bool = True) -> SlamResult:
         """A snapshot of the result so far; changes nothing (``partial`` marks an unfinished run).
-
         Before :meth:`finish`, the last scan is not yet in the map (its deskewing waits for the
         next scan; with dynamic removal the last ``dynamic.window_scans`` wait for the sweeps after
         them) and an open motion-model stretch is reported up to the last scan. ``with_map`` False
         leaves the map's clouds empty: a checkpoint that does not write the map does not fetch it
-        (from the map's process: the whole map copied across, tens of MB, each time).
-        """
+        (from the map's process: the whole map copied across, tens of MB, each time)."""
         keyframes = self.submap.keyframes
         odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)
         clouds = self._map.clouds() if with_map else MapClouds.empty()
@@ -296,19 +293,22 @@ class SlamPipeline:
             if len(self.submap) and self.submap.keyframes[-1].scan_index == latest.scan_index:
                 self.submap.replace_clouds(len(self.submap) - 1, *deskewed.keyframe_clouds(self.config.mapping))
             else:
-                update = self._add_keyframe(latest.scan_index, latest.stamp_ns, settled.T_world_lidar, deskewed)
+                update = self._add_keyframe(
+                    latest.scan_index, latest.stamp_ns, settled.T_world_lidar, deskewed, latest.health
+                )
         # A loop closed at this sweep's own keyframe moved the sweep with it (and the anchor).
         T_map = self._estimates[-1].T_world_lidar if update is not None else settled.T_world_lidar
         self._map.add(settled.scan, T_map, settled.twist, self.submap.anchor())
         return update
 
     def _add_keyframe(
-        self, scan_index: int, stamp_ns: int, T_world_lidar: np.ndarray, deskewed: SweepFeatures
+        self, scan_index: int, stamp_ns: int, T_world_lidar: np.ndarray, deskewed: SweepFeatures, health: ScanHealth
     ) -> LoopUpdate | None:
-        """Add a keyframe and look for a loop at it; an accepted loop is applied at once."""
+        """Add a keyframe (``health``: its scan's) and look for a loop at it; an accepted loop is applied at once."""
         corner, surf = deskewed.keyframe_clouds(self.config.mapping)
         step = self._step_uncertainty.take() if len(self.submap) else None
-        self.submap.add(Keyframe(len(self.submap), scan_index, stamp_ns, T_world_lidar, corner, surf, step))
+        lost = health.flag is HealthFlag.LOST  # a scan registered against it inherits its error
+        self.submap.add(Keyframe(len(self.submap), scan_index, stamp_ns, T_world_lidar, corner, surf, step, lost))
         if self.loop is None:
             return None
         t0 = time.perf_counter()

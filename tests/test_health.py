@@ -31,6 +31,7 @@ from lidar3d.mapping.health import (
     scan_measures,
     summarize_health,
 )
+from lidar3d.mapping.keyframes import Keyframe, Submap
 from lidar3d.mapping.odometry import OdometryStep
 from lidar3d.mapping.registration import PosePrior, SolveResult
 from lidar3d.mapping.se3 import pose_from_xyz_rpy
@@ -155,6 +156,39 @@ def heading(difference_deg: float, sigma_deg: float = 0.02, **changes) -> ScanMe
     return measures(
         heading_difference_rad=np.radians(difference_deg), odometry_yaw_sigma_rad=np.radians(sigma_deg), **changes
     )
+
+
+def test_a_scan_registered_against_keyframes_placed_while_lost_is_degraded():
+    # Observed and confident, but its submap holds keyframes that were dead-reckoned.
+    on_lost_map = measures(lost_keyframes=3)
+    assert flags(assess_all([measures()] * 2 + [on_lost_map] * 3 + [measures()] * 2)) == "oo" + "ddd" + "oo"
+    # A lost scan stays lost whatever its submap holds.
+    blind = measures(sigma_m=10 * CONFIG.observed_sigma_m, lost_keyframes=2)
+    assert flags(assess_all([blind] * 25))[-1] == "l"
+
+
+def _keyframe(index: int, x_m: float, lost: bool) -> Keyframe:
+    rng = np.random.default_rng(index)
+    wall = np.column_stack([rng.uniform(-5, 5, 300), np.full(300, 4.0), rng.uniform(0, 3, 300)])
+    ground = np.column_stack([rng.uniform(-5, 5, 300), rng.uniform(-3, 3, 300), np.full(300, -1.8)])
+    pose = pose_from_xyz_rpy(np.array([x_m, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    return Keyframe(index, index, index * S, pose, wall[:40], np.concatenate([wall, ground]), placed_lost=lost)
+
+
+def test_the_submap_counts_the_keyframes_placed_while_lost_that_it_registers_against():
+    submap = Submap(radius_m=20.0, max_keyframes=60, recent=2, corner_voxel_m=0.2, surf_voxel_m=0.4)
+    assert submap.lost_keyframes_in_target() == 0  # no target yet
+    for k in range(30):  # keyframes 10-14 were placed while lost, 1 m apart along x
+        submap.add(_keyframe(k, float(k), 10 <= k < 15))
+    submap.target(np.array([12.0, 0.0, 0.0]))
+    assert submap.lost_keyframes_in_target() == 5
+    submap.target(np.array([29.0, 0.0, 0.0]))  # within 20 m: keyframes 9.x-29; 10-14 among them
+    assert submap.lost_keyframes_in_target() == 5
+    far = Submap(radius_m=10.0, max_keyframes=60, recent=2, corner_voxel_m=0.2, surf_voxel_m=0.4)
+    for k in range(30):
+        far.add(_keyframe(k, float(k), 10 <= k < 15))
+    far.target(np.array([29.0, 0.0, 0.0]))  # the lost ones are out of reach
+    assert far.lost_keyframes_in_target() == 0
 
 
 def test_a_steady_heading_pull_flags_degraded_once_it_exceeds_the_odometrys_uncertainty():
@@ -422,12 +456,22 @@ def test_health_csv_round_trip(tmp_path):
 
 def test_a_health_csv_without_the_pose_uncertainty_is_read(tmp_path):
     path = tmp_path / "health.csv"
-    write_health_csv(path, [0, 1], assess_all([measures(), measures()]))
-    lines = [line.rsplit(",", 1)[0] for line in path.read_text().splitlines()]
+    write_health_csv(path, [0, 1], assess_all([measures(lost_keyframes=2), measures(lost_keyframes=2)]))
+    lines = [line.rsplit(",", 2)[0] for line in path.read_text().splitlines()]
     path.write_text("\n".join(lines) + "\n")
     _, health = read_health_csv(path)
     assert [np.isnan(h.measures.pose_sigma_m) for h in health] == [True, True]
-    assert health[1].measures.n_rows == 1500 and health[1].along_z == 0.0
+    assert health[1].measures.n_rows == 1500 and health[1].along_z == 0.0 and health[1].measures.lost_keyframes == 0
+
+
+def test_a_health_csv_without_the_lost_keyframes_is_read(tmp_path):
+    path = tmp_path / "health.csv"
+    write_health_csv(path, [0], assess_all([measures(lost_keyframes=2, pose_sigma_m=0.03)]))
+    assert path.read_text().splitlines()[1].endswith(",0.03,2")
+    lines = [line.rsplit(",", 1)[0] for line in path.read_text().splitlines()]
+    path.write_text("\n".join(lines) + "\n")
+    _, (health,) = read_health_csv(path)
+    assert health.measures.lost_keyframes == 0 and health.measures.pose_sigma_m == 0.03
 
 
 def test_scan_measures_take_the_pose_sigma_from_its_covariance():
@@ -454,11 +498,11 @@ def test_an_earlier_releases_health_csv_is_read_without_the_consistency_measures
         ("a,b\n", r"not a health table"),
         (",".join(HEALTH_COLUMNS) + "\n1,2,3\n", rf"health\.csv:2: 3 columns, expected {len(HEALTH_COLUMNS)}"),
         (
-            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01\n",
+            ",".join(HEALTH_COLUMNS) + "\n0,0,fine,1,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01,0\n",
             r"health\.csv:2: flag 'fine' is not one of",
         ),
         (
-            ",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01\n",
+            ",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01,0\n",
             r"health\.csv:2: 'yes' is not 0 or 1",
         ),
     ],
@@ -526,6 +570,9 @@ def _run_observing_nothing(bag: Path, tmp_path: Path, lost_after_m: float) -> Ru
 
 def test_a_run_with_lost_stretches_exits_0_and_says_so(simulated, tmp_path, capsys):
     summary = _run_observing_nothing(simulated.bag, tmp_path, lost_after_m=0.02)
+    # Its keyframes were placed while lost, and the later scans registered against them.
+    _, health = read_health_csv(tmp_path / "out" / "health.csv")
+    assert health[0].measures.lost_keyframes == 0 and health[-1].measures.lost_keyframes >= 3
     (stretch,) = summary.health.lost_stretches
     assert stretch.last_scan == summary.scans - 1 and stretch.length_m > 5.0
     warnings = [w for w in summary.warnings if w.startswith("health: lost")]

@@ -12,7 +12,8 @@ step's), ``odometry_yaw_sigma_deg`` (``inf`` when the odometry measured no yaw),
 ``odometry_along_sigma_m`` and ``odometry_along_travel_m`` (the same along the step), ``heading_z``
 and ``along_z`` (how far the two parted over ``health.consistency_window_m``, in standard deviations),
 ``pose_sigma_m`` (the pose's standard deviation relative to the map, ``nan`` in tables of earlier
-releases). See
+releases), ``lost_keyframes`` (keyframes placed while lost in the submap the scan was registered
+against; 0 in tables of earlier releases). See
 :mod:`lidar3d.mapping.health` for what each means.
 """
 
@@ -56,14 +57,16 @@ HEALTH_COLUMNS = (
     "heading_z",
     "along_z",
     "pose_sigma_m",
+    "lost_keyframes",
 )
 
-#: The columns of earlier releases' tables, without the consistency test's, or without the pose
-#: uncertainty: still read (those measures at their "not measured" defaults), so older run
-#: folders can be scored.
+#: The columns of earlier releases' tables, without the consistency test's, the pose uncertainty
+#: or the lost keyframes: still read (those measures at their "not measured" defaults), so older
+#: run folders can be scored.
 _EARLIER_COLUMNS = (
     HEALTH_COLUMNS[: HEALTH_COLUMNS.index("heading_difference_deg")],
     HEALTH_COLUMNS[: HEALTH_COLUMNS.index("pose_sigma_m")],
+    HEALTH_COLUMNS[: HEALTH_COLUMNS.index("lost_keyframes")],
 )
 _NOT_MEASURED = {
     "heading_difference_deg": "0",
@@ -75,6 +78,7 @@ _NOT_MEASURED = {
     "heading_z": "0",
     "along_z": "0",
     "pose_sigma_m": "nan",
+    "lost_keyframes": "0",
 }
 
 
@@ -119,6 +123,7 @@ def write_health_csv(path: str | Path, scan_indices: Sequence[int] | np.ndarray,
                 _number(h.heading_z),
                 _number(h.along_z),
                 _number(m.pose_sigma_m),
+                m.lost_keyframes,
             )
         )
     write_text_atomic(path, buffer.getvalue())
@@ -155,6 +160,7 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         odometry_along_sigma_m=float(row["odometry_along_sigma_m"]),
         odometry_along_travel_m=float(row["odometry_along_travel_m"]),
         pose_sigma_m=float(row["pose_sigma_m"]),
+        lost_keyframes=int(row["lost_keyframes"]),
     )
     health = ScanHealth(
         stamp_ns=int(row["stamp_ns"]),
@@ -173,7 +179,8 @@ def read_health_csv(path: str | Path) -> tuple[np.ndarray, tuple[ScanHealth, ...
     """The (N,) input scan numbers and the health of every row of a ``health.csv``.
 
     A table of an earlier release (:data:`HEALTH_COLUMNS` without the consistency test's columns,
-    or without ``pose_sigma_m``) is read too, those measures at their "not measured" values.
+    without ``pose_sigma_m`` or without ``lost_keyframes``) is read too, those measures at their
+    "not measured" values.
 
     Raises:
         HealthFileError: the file is missing, its header is neither :data:`HEALTH_COLUMNS` nor an

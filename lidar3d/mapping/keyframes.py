@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -30,6 +31,8 @@ class Keyframe:
         step_covariance: (6,6) covariance of the step from the previous keyframe to this one
             (GTSAM order ``[w (rad), v (m)]``, this keyframe's frame;
             :class:`~lidar3d.mapping.step_uncertainty.StepUncertainty`), None when unknown.
+        placed_lost: the health flag of its scan was ``lost``: its pose was dead-reckoned, so a
+            scan registered against it is no better (:meth:`Submap.lost_keyframes_in_target`).
     """
 
     index: int
@@ -39,6 +42,7 @@ class Keyframe:
     corner_points: np.ndarray
     surf_points: np.ndarray
     step_covariance: np.ndarray | None = None
+    placed_lost: bool = False
 
 
 class KeyframeSelector:
@@ -159,9 +163,7 @@ class Submap:
     def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
         """Replace keyframe ``k``'s clouds (e.g. once a better deskewing motion is known)."""
         old = self.keyframes[k]
-        self.keyframes[k] = Keyframe(
-            old.index, old.scan_index, old.stamp_ns, old.T_world_lidar, corner_points, surf_points, old.step_covariance
-        )
+        self.keyframes[k] = dataclasses.replace(old, corner_points=corner_points, surf_points=surf_points)
         self._cache.pop(k, None)
         self._target = None
 
@@ -228,3 +230,10 @@ class Submap:
             ),
         )
         return self._target
+
+    def lost_keyframes_in_target(self) -> int:
+        """How many keyframes of the submap last registered against (:meth:`target`) were placed
+        while the tracker was lost (:attr:`Keyframe.placed_lost`); 0 before any target."""
+        if self._target is None:
+            return 0
+        return sum(self.keyframes[k].placed_lost for k in self._target.keyframe_indices)
