@@ -159,14 +159,19 @@ def test_the_clouds_pipe_carries_arrays_whole_and_reports_a_cut_transfer():
 def test_a_ctrl_c_during_the_clouds_transfer_waits_for_its_end():
     """A transfer cut half way would leave the rest of the map in the pipe: the interrupt is held
     back until the arrays are read, then delivered."""
-    import os
     import signal
 
     from lidar3d.map_process import _sigint_deferred
 
+    # A test run started in the background of a non-interactive shell inherits SIGINT ignored
+    # (POSIX), and Python then keeps it ignored: give the test the interactive default.
+    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
     finished = False
-    with pytest.raises(KeyboardInterrupt), _sigint_deferred():
-        os.kill(os.getpid(), signal.SIGINT)
-        finished = True
-    assert finished
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    try:
+        with pytest.raises(KeyboardInterrupt), _sigint_deferred():
+            signal.raise_signal(signal.SIGINT)  # to this, the main, thread
+            finished = True
+        assert finished
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, inherited)
