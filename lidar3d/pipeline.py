@@ -185,9 +185,7 @@ class SlamPipeline:
         pose_covariance = self._pose_uncertainty.add(track.T_world_lidar, dt_s, rows_information)
         if self.moving_points is not None:
             self.moving_points.note_pose_covariance(pose_covariance)
-        on_lost = self.submap.lost_keyframes_in_target()  # keyframes its submap holds placed while lost
-        measures = scan_measures(track, previous, self.config.health, pose_covariance, on_lost)
-        health = self.health.assess(stamp_ns, measures)
+        health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health, pose_covariance))
         self.stats.add_timings(track.timings_ms)
         if track.registration is not None and track.registration.degenerate_axes:
             self.stats.count("degenerate_scans")
@@ -237,11 +235,13 @@ class SlamPipeline:
 
     def result(self, partial: bool = False, *, with_map: bool = True) -> SlamResult:
         """A snapshot of the result so far; changes nothing (``partial`` marks an unfinished run).
+
         Before :meth:`finish`, the last scan is not yet in the map (its deskewing waits for the
         next scan; with dynamic removal the last ``dynamic.window_scans`` wait for the sweeps after
         them) and an open motion-model stretch is reported up to the last scan. ``with_map`` False
         leaves the map's clouds empty: a checkpoint that does not write the map does not fetch it
-        (from the map's process: the whole map copied across, tens of MB, each time)."""
+        (from the map's process: the whole map copied across, tens of MB, each time).
+        """
         keyframes = self.submap.keyframes
         odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)
         clouds = self._map.clouds() if with_map else MapClouds.empty()

@@ -189,6 +189,11 @@ def test_the_submap_counts_the_keyframes_placed_while_lost_that_it_registers_aga
         far.add(_keyframe(k, float(k), 10 <= k < 15))
     far.target(np.array([29.0, 0.0, 0.0]))  # the lost ones are out of reach
     assert far.lost_keyframes_in_target() == 0
+    # New clouds for a keyframe (deskewed again) keep the mark.
+    submap.replace_clouds(12, *(c[:10] for c in (submap.keyframes[12].corner_points, submap.keyframes[12].surf_points)))
+    assert submap.keyframes[12].placed_lost and not submap.keyframes[20].placed_lost
+    submap.target(np.array([12.0, 0.0, 0.0]))
+    assert submap.lost_keyframes_in_target() == 5
 
 
 def test_a_steady_heading_pull_flags_degraded_once_it_exceeds_the_odometrys_uncertainty():
@@ -504,6 +509,10 @@ def test_an_earlier_releases_health_csv_is_read_without_the_consistency_measures
         (
             ",".join(HEALTH_COLUMNS) + "\n0,0,ok,yes,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01,0\n",
             r"health\.csv:2: 'yes' is not 0 or 1",
+        ),
+        (
+            ",".join(HEALTH_COLUMNS) + "\n0,0,ok,1,0,0,1,0,5,0,0.1,0,0,0,1,0,inf,0,0,inf,0,0,0,0.01,-1\n",
+            r"health\.csv:2: '-1' is not a count",
         ),
     ],
 )

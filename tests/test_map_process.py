@@ -175,3 +175,19 @@ def test_a_ctrl_c_during_the_clouds_transfer_waits_for_its_end():
         assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
     finally:
         signal.signal(signal.SIGINT, inherited)
+
+
+def test_a_ctrl_c_ignored_from_the_start_stays_ignored_through_the_transfer():
+    """Started with SIGINT ignored (nohup, a background job): the deferral neither raises nor
+    leaves a handler of its own behind."""
+    import signal
+
+    from lidar3d.map_process import _sigint_deferred
+
+    inherited = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with _sigint_deferred():
+            signal.raise_signal(signal.SIGINT)
+        assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, inherited)

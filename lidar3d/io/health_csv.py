@@ -142,6 +142,13 @@ def _boolean(text: str) -> bool:
     return text == "1"
 
 
+def _count(text: str) -> int:
+    value = int(text)
+    if value < 0:
+        raise ValueError(f"{text!r} is not a count")
+    return value
+
+
 def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
     measures = ScanMeasures(
         registered=_boolean(row["registered"]),
@@ -160,7 +167,7 @@ def _row(row: dict[str, str]) -> tuple[int, ScanHealth]:
         odometry_along_sigma_m=float(row["odometry_along_sigma_m"]),
         odometry_along_travel_m=float(row["odometry_along_travel_m"]),
         pose_sigma_m=float(row["pose_sigma_m"]),
-        lost_keyframes=int(row["lost_keyframes"]),
+        lost_keyframes=_count(row["lost_keyframes"]),
     )
     health = ScanHealth(
         stamp_ns=int(row["stamp_ns"]),

@@ -233,11 +233,7 @@ def _prior_axes(track: TrackResult) -> int:
 
 
 def scan_measures(
-    track: TrackResult,
-    previous: PosedScan | None,
-    config: HealthConfig,
-    pose_covariance: np.ndarray | None = None,
-    lost_keyframes: int = 0,
+    track: TrackResult, previous: PosedScan | None, config: HealthConfig, pose_covariance: np.ndarray | None = None
 ) -> ScanMeasures:
     """The health measures of the scan ``track`` concluded on.
 
@@ -251,7 +247,6 @@ def scan_measures(
         config: the ``[health]`` section (``residual_sigma_m``, ``lever_m``).
         pose_covariance: (6,6) covariance of the pose in the tangent ``[w, v]`` (rad, m), from
             :class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`; None: not measured.
-        lost_keyframes: keyframes placed while lost in the submap the scan was registered against.
     """
     registration = track.registration
     registered = registration is not None
@@ -306,7 +301,7 @@ def scan_measures(
         odometry_along_sigma_m=along_sigma_m,
         odometry_along_travel_m=along_travel_m,
         pose_sigma_m=float("nan") if pose_covariance is None else _sigma_m(pose_covariance, config.lever_m),
-        lost_keyframes=int(lost_keyframes),
+        lost_keyframes=track.lost_keyframes,
     )
 
 

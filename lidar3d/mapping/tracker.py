@@ -95,6 +95,9 @@ class TrackResult:
         deskew_twist: (6,) the predicted twist the scan was deskewed and registered with.
         odometry_step: the scan-to-scan odometry step (its uncertainty and how far it moved
             from its guess, for the health signal); None only in results built by hand.
+        lost_keyframes: keyframes placed while lost in the submap this scan was registered
+            against (:meth:`~lidar3d.mapping.keyframes.Submap.lost_keyframes_in_target`, taken
+            before the previous sweep's re-registration selects a submap of its own).
         settled: the previous sweep, final now (None for the first scan).
         timings_ms: wall milliseconds per stage: deskew, odometry, mapping, redeskew (the last
             only when a previous sweep was settled).
@@ -111,6 +114,7 @@ class TrackResult:
     settled: SettledSweep | None
     timings_ms: dict[str, float]
     odometry_step: OdometryStep | None = None
+    lost_keyframes: int = 0
 
     @property
     def well_constrained(self) -> bool:
@@ -200,6 +204,7 @@ class Tracker:
         T_world_odom = previous.T_world_odom @ step.T_prev_curr if previous else np.eye(4)
         with clock("mapping"):
             refinement = self._refine(deskewed, previous, step, reference_dt_s, offset_s, predicted)
+        lost_keyframes = self._submap.lost_keyframes_in_target()
         T_world_lidar = refinement.T_world_lidar
         motion_known = self._motion_known
         T_world_reference = _moved_by(T_world_lidar, offset_s, predicted)
@@ -249,6 +254,7 @@ class Tracker:
             settled=settled,
             timings_ms=clock.ms,
             odometry_step=step,
+            lost_keyframes=lost_keyframes,
         )
 
     def finish(self) -> SettledSweep | None:
