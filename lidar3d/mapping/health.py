@@ -56,11 +56,12 @@ did not observe a quantity adds nothing to its sum, nor does a standstill.
 **Registered against a lost stretch.** A scan's pose is relative to the submap it is registered
 against, and that submap is only as good as the keyframes in it: keyframes placed while the flag
 was ``lost`` were dead-reckoned. After a blind stretch (a walled canyon, open land) the scans
-register well and confidently against those keyframes, and inherit their error: on
-``city_traffic`` the stretch after the canyon ran 12-20 % short with every measure above calm.
-So a scan whose submap holds any keyframe placed while lost is ``degraded``, until the submap has
-moved on past them (``lost_keyframes``). Only ``lost`` keyframes count, not ``degraded`` ones,
-so the flag cannot feed itself.
+register well and confidently against those keyframes, and nothing in a scan tells whether the
+map under it is right: on ``city_traffic`` the stretch after the canyon ran 12-20 % short (pulled
+mostly by the car that follows the vehicle) with every measure calm. So a scan whose submap
+holds any keyframe placed while lost is ``degraded``, until the submap has moved on past them
+(``lost_keyframes``, counted by the tracker for the scan's own registration). Only ``lost``
+keyframes count, not ``degraded`` ones, so the flag cannot feed itself.
 """
 
 from __future__ import annotations
