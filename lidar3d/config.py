@@ -407,6 +407,9 @@ class MappingConfig:
     )
     redeskew_lever_m: float = _key(10.0, _closed(0.0, 10000.0, "m"), "lever arm of that test's rotation part")
     redeskew_iterations: int = _key(4, _ITERATIONS, "iteration limit of the second registration")
+    tilt_knot_spacing_s: float = _key(
+        0.0, _closed(0.0, 1.0, "s"), "roll/pitch knots within a sweep (vibration) this far apart at most (0: off)"
+    )
     # The Gauss-Newton information holds the correspondences fixed; where matches are random
     # (range noise on flat walls passing the edge threshold) it claims a direction the cost does
     # not hold. The registration is probed along its weakest translation by this shift (more than

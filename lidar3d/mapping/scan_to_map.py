@@ -20,8 +20,9 @@ import numpy as np
 from lidar3d.config import MappingConfig
 from lidar3d.mapping.keyframes import SubmapTarget
 from lidar3d.mapping.registration import MatchRows, PosePrior, SolveResult, probe_return_share, solve_pose
+from lidar3d.mapping.sweep_tilt import SweepTilt, estimate_sweep_tilt
 
-__all__ = ["register_to_submap"]
+__all__ = ["register_to_submap", "sweep_tilt_on_submap"]
 
 
 def _median_range_m(points_lidar: np.ndarray) -> float:
@@ -80,6 +81,32 @@ def register_to_submap(
     probe_corner, probe_surf = corner_lidar[::stride], surf_lidar[::stride]
     probe = (np.concatenate([probe_corner, probe_surf]), _matcher(target, len(probe_corner), len(probe_surf)))
     return _solve_probed(result, source, find_matches, probe, config, solve)
+
+
+def sweep_tilt_on_submap(
+    target: SubmapTarget,
+    corner: tuple[np.ndarray, np.ndarray],
+    surf: tuple[np.ndarray, np.ndarray],
+    T_world_lidar: np.ndarray,
+    config: MappingConfig,
+    prior_sigma_rad: float,
+) -> SweepTilt | None:
+    """The roll and pitch of a sweep registered at ``T_world_lidar`` beyond its constant twist
+    (:func:`~lidar3d.mapping.sweep_tilt.estimate_sweep_tilt`), from its rows against the submap:
+    ``corner`` and ``surf`` are (N, 3) deskewed points in the lidar frame and (N,) their times
+    (s from the stamp); knots every ``config.tilt_knot_spacing_s``, each with the prior
+    ``prior_sigma_rad``. None when off (spacing 0) or too few rows."""
+    points = np.concatenate([corner[0], surf[0]])
+    return estimate_sweep_tilt(
+        T_world_lidar,
+        points,
+        np.concatenate([corner[1], surf[1]]),
+        _matcher(target, len(corner[0]), len(surf[0])),
+        knot_spacing_s=config.tilt_knot_spacing_s,
+        prior_sigma_rad=prior_sigma_rad,
+        robust_scale_m=config.robust_scale_m,
+        min_rows=config.min_rows,
+    )
 
 
 def _matcher(target: SubmapTarget, n_corner: int, n_surf: int) -> Callable[[np.ndarray, float | None], MatchRows]:

@@ -88,6 +88,19 @@ class SweepFeatures:
         )
         return corner, surf
 
+    def timed_registration_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """:meth:`registration_clouds` with each voxel's mean time offset (s from the stamp): (M,3)
+        corner points, (M,) their times, (K,3) surface points, (K,) their times."""
+        f = self.features
+        corner, corner_time_s = voxel_downsample(f.less_sharp.points, config.corner_voxel_m, f.less_sharp.time_offset_s)
+        surfaces = (f.less_flat, f.outliers, self.ground)
+        surf, surf_time_s = voxel_downsample(
+            np.concatenate([c.points for c in surfaces]),
+            config.surf_voxel_m,
+            np.concatenate([c.time_offset_s for c in surfaces]),
+        )
+        return corner, corner_time_s, surf, surf_time_s
+
     def keyframe_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray]:
         """:meth:`registration_clouds` in float32, as a keyframe keeps them for the whole run
         (sub-millimetre within the lidar's range)."""
