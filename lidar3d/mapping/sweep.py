@@ -81,11 +81,7 @@ class SweepFeatures:
 
     def registration_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray]:
         """(M,3) corner and (K,3) surface clouds, voxel-downsampled with the map's voxel sizes."""
-        f = self.features
-        corner = voxel_downsample(f.less_sharp.points, config.corner_voxel_m)
-        surf = voxel_downsample(
-            np.concatenate([f.less_flat.points, f.outliers.points, self.ground.points]), config.surf_voxel_m
-        )
+        corner, _, surf, _ = self.timed_registration_clouds(config)
         return corner, surf
 
     def timed_registration_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
