@@ -20,8 +20,8 @@ The tracker (:func:`lidar3d.mapping.tracker._register`) registers the sweep move
 again; the keyframes and the dense map keep the sweep as deskewed (fed back into the map, the
 tilts followed the map's own slope errors). The idea is the continuous-time trajectory of CT-ICP
 (Dellenbach et al., ICRA 2022: a pose at the sweep's start and one at its end), reduced to the two
-angles vibration moves; docs/stages/odometry-mapping.md#vibration-within-a-sweep has what it does
-to the suite's drives.
+angles vibration moves; docs/stages/odometry-mapping.md#vibration-within-a-sweep-opt-in has what it
+does to the suite's drives.
 """
 
 from __future__ import annotations
@@ -57,15 +57,20 @@ class SweepTilt:
         (first order: ``p + eps(t) x p``)."""
         if len(points_lidar) == 0:
             return points_lidar
-        eps = _hat_weights(time_offset_s, self.knot_times_s) @ self.roll_pitch_rad  # (N, 2)
-        x, y, z = points_lidar[:, 0], points_lidar[:, 1], points_lidar[:, 2]
-        # eps x p with eps = (roll, pitch, 0)
-        return np.column_stack([x + eps[:, 1] * z, y - eps[:, 0] * z, z + eps[:, 0] * y - eps[:, 1] * x])
+        return _tilted(points_lidar, _hat_weights(time_offset_s, self.knot_times_s) @ self.roll_pitch_rad)
 
     @property
     def max_rad(self) -> float:
         """The largest roll or pitch at any knot (rad)."""
         return float(np.abs(self.roll_pitch_rad).max()) if self.roll_pitch_rad.size else 0.0
+
+
+def _tilted(points: np.ndarray, roll_pitch_rad: np.ndarray) -> np.ndarray:
+    """(N, 3) points each rotated by its own small (N, 2) roll and pitch: ``p + eps x p`` with
+    ``eps = (roll, pitch, 0)``."""
+    x, y, z = points[:, 0], points[:, 1], points[:, 2]
+    roll, pitch = roll_pitch_rad[:, 0], roll_pitch_rad[:, 1]
+    return np.column_stack([x + pitch * z, y - roll * z, z + roll * y - pitch * x])
 
 
 def _hat_weights(times_s: np.ndarray, knot_times_s: np.ndarray) -> np.ndarray:
@@ -116,9 +121,8 @@ def estimate_sweep_tilt(
     derivative ``(p x R^T n) . d eps``, ``eps`` interpolated between the knots; rows weigh by the
     Geman-McClure kernel of ``robust_scale_m`` (> 0) and the residual spread, each knot has the
     prior ``N(0, prior_sigma_rad^2)`` per angle, and the knots' mean and slope are held at zero
-    (the pose's and the twist's). None when
-    there are no knots (``knot_spacing_s`` 0, a sweep without a time span) or fewer than
-    ``min_rows`` rows."""
+    (the pose's and the twist's). None when there are no knots (``knot_spacing_s`` 0, a sweep
+    without a time span) or fewer than ``min_rows`` rows."""
     knots_s = knot_times(time_offset_s, knot_spacing_s)
     if knots_s is None or len(points_lidar) == 0:
         return None
@@ -136,7 +140,7 @@ def estimate_sweep_tilt(
     tilt = SweepTilt(knots_s, np.zeros((k, 2)))
     c2 = robust_scale_m**2
     for _ in range(iterations):
-        moved = tilt.apply(points_lidar, time_offset_s)
+        moved = _tilted(points_lidar, weights @ tilt.roll_pitch_rad)  # the weights computed once
         matches = find_matches(moved @ R.T + t, None)
         if len(matches) < min_rows:
             return None if not x.any() else tilt
