@@ -691,6 +691,20 @@ class DynamicConfig:
         True, None, "a ray sees through a voxel only beyond the slack of the surface it hit at a grazing angle"
     )
     pose_angle_deg: float = _key(0.5, _closed(0.0, 10.0, "deg"), "angular pose error the grazing slack allows for")
+    surface_side: bool = _key(
+        True,
+        None,
+        "a ray passing in front of a voxel's own surface (the side it was seen from) does not see through it",
+    )
+    surface_tolerance_m: float = _key(0.05, _closed(0.0, 5.0, "m"), "... unless it passes within this of the surface")
+    surface_angle_deg: float = _key(
+        0.0, _closed(0.0, 10.0, "deg"), "... plus this angular error between two sweeps' poses times the range"
+    )
+    cluster_share: float = _key(
+        0.5,
+        _closed(0.0, 1.0),
+        "a connected cluster of a sweep's voxels is dynamic whole when this share of those with evidence is (0: off)",
+    )
 
 
 @dataclass(frozen=True, slots=True)

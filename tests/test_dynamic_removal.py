@@ -8,8 +8,17 @@ import pytest
 
 from lidar3d.config import Config, DynamicConfig
 from lidar3d.mapping.dense_map import DenseMap
-from lidar3d.mapping.free_space import PlacedSweep, ProbeStack, SweepProbe, sin_grazing, voxel_evidence
-from lidar3d.mapping.voxel import VoxelMap, voxel_keys
+from lidar3d.mapping.free_space import (
+    PlacedSweep,
+    ProbeStack,
+    SweepProbe,
+    mostly_dynamic_clusters,
+    point_normals,
+    sin_grazing,
+    surface_normals,
+    voxel_evidence,
+)
+from lidar3d.mapping.voxel import VoxelMap, voxel_key_step, voxel_keys
 from lidar3d.records import Scan
 from lidar3d.sim import DYNAMIC_CLASSES, ObjectClass, Simulation
 
@@ -269,3 +278,71 @@ def test_a_ray_skimming_the_road_does_not_see_through_the_road_a_car_above_it_is
     assert misses[0] == 0 and misses[1] == 1
     plain = dataclasses.replace(config, grazing_slack=False)
     assert _evidence(np.array([road]), [probe], elevation, plain)[1][0] == 1  # without the slack: "seen through"
+
+
+# ---------------------------------------------------------------- the voxel's own surface
+
+
+def test_surface_normals_face_the_sensor_and_reach_the_points():
+    points, range_m, _ = _ground_image(1.8, np.array([-15.0, -9.0, -5.0, -3.0, -2.0, -1.0]))
+    normal = surface_normals(points, range_m)
+    # The ground below the sensor faces up, towards it.
+    np.testing.assert_allclose(normal[1:-1].reshape(-1, 3).mean(axis=0), [0.0, 0.0, 1.0], atol=1e-3)
+    np.testing.assert_allclose(np.linalg.norm(normal[1:-1], axis=-1), 1.0, atol=1e-5)
+    assert not normal[:1].any() or not surface_normals(points[:1], range_m[:1]).any()  # one ring: unknown
+    # Per point, in the order given; of two points in one pixel only the one the image kept has one.
+    ring = np.repeat(np.arange(6), 1800)
+    cloud = points.reshape(-1, 3).astype(np.float64)
+    shared = 900 + 1800 * 3
+    per_point = point_normals(np.vstack([cloud, cloud[[shared]] * 1.5]), np.r_[ring, 3], 6, 1800)
+    others = np.r_[1800 * 2 : shared, shared + 1 : 1800 * 4]
+    np.testing.assert_allclose(per_point[others], normal[2:4].reshape(-1, 3)[others - 1800 * 2], atol=1e-6)
+    assert (np.abs(per_point[[shared, -1]]).sum(axis=1) > 0).sum() == 1
+
+
+def test_a_ray_passing_over_a_roof_does_not_see_through_it_one_through_the_space_below_does():
+    """A car's roof 1.45 m above the road, 10 m ahead of a sensor 1.8 m up: a ray that skims 0.18 m
+    over it and returns far beyond passes within the pass tolerance (0.2 m) of the roof's voxel, but in
+    front of the surface its sweep saw (from above): no evidence. A ray 0.18 m below the roof
+    (through where the car's body was) still sees through it, and so does a ray meeting the side of
+    a pedestrian's voxel head on."""
+    roof = np.array([[10.0, 0.0, -0.35]])
+    up = np.array([[0.0, 0.0, 1.0]])
+    config = DynamicConfig()
+    for gap_m, expected in ((0.18, 0), (-0.18, 1)):
+        beam = np.array([40.0, 0.0, 4.0 * (roof[0, 2] + gap_m)])  # through (10, 0, -0.35 + gap), returning at 40 m
+        elevation = np.array([np.arctan2(beam[2], beam[0])])
+        stack = ProbeStack.of([_probe([beam])])
+        without = voxel_evidence(roof, stack, np.arange(1), elevation, config)[1][0]
+        with_surface = voxel_evidence(roof, stack, np.arange(1), elevation, config, up)[1][0]
+        assert without == 1, gap_m  # the ray alone passes within the tolerance and returns beyond
+        assert with_surface == expected, gap_m
+    side = np.array([[10.0, 0.0, 0.0]])
+    facing = np.array([[-1.0, 0.0, 0.0]])  # a pedestrian's side seen from the sensor
+    probe = _probe([[20.0, 0.0, 0.0]])
+    elevation_flat = np.deg2rad([0.0])
+    assert voxel_evidence(side, ProbeStack.of([probe]), np.arange(1), elevation_flat, config, facing)[1][0] == 1
+
+
+def test_a_cluster_mostly_seen_through_goes_whole_one_mostly_hit_stays():
+    """A car gone (its sides seen through, its roof without evidence) and a wall a few of whose voxels
+    a stray ray saw through, 3 m apart: the car's roof goes with its sides; the wall stays."""
+    car = np.array([[i, j, k] for i in range(10, 20) for j in range(5) for k in range(8)]) * VOXEL_M
+    wall = np.array([[i, 20, k] for i in range(40) for k in range(10)]) * VOXEL_M
+    points = np.vstack([car, wall]) + VOXEL_M / 2
+    keys = voxel_keys(points, VOXEL_M)
+    order = np.argsort(keys)
+    keys, points = keys[order], points[order]
+    on_car = points[:, 1] < 1.5
+    roof = on_car & (points[:, 2] > 7 * VOXEL_M)
+    dynamic = on_car & ~roof & (np.arange(len(points)) % 3 > 0)  # two thirds of the car's voxels below its roof
+    evidence = ~roof
+    stray = np.flatnonzero(~on_car)[::7]
+    dynamic[stray] = True
+    spread = mostly_dynamic_clusters(keys, dynamic, evidence, 0.5)
+    assert spread[on_car].all()
+    assert not spread[~on_car].any()
+    assert not mostly_dynamic_clusters(keys, np.zeros(len(keys), bool), evidence, 0.5).any()
+    # The key steps the clusters use are those of the neighbouring voxels.
+    for d in ((1, 0, 0), (0, -1, 1), (-1, 1, -1)):
+        np.testing.assert_array_equal(voxel_keys(points + np.array(d) * VOXEL_M, VOXEL_M), keys + voxel_key_step(*d))

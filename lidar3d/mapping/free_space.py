@@ -7,8 +7,10 @@ is tested against the sweeps of a window around it (``window_scans`` before and 
 
 * the probe's ray passes within ``pass_tolerance_m`` of the centroid and returns at least
   ``range_margin_m`` beyond it, and beyond the *grazing slack* of the surface it hit (see
-  :func:`voxel_evidence`: a ray skimming the road returns far beyond a road voxel it passes over):
-  the probe saw **through** the voxel (a miss);
+  :func:`voxel_evidence`: a ray skimming the road returns far beyond a road voxel it passes over),
+  and not in front of the voxel's own surface (``surface_side``: a ray passing over a car's roof,
+  on the side the roof was seen from, does not go through the roof): the probe saw **through**
+  the voxel (a miss);
 * the ray passes within that tolerance and returns within the margin of it: a **hit**;
 * the return is nearer (the voxel was occluded), or the pixel holds no return (sky, glass, a
   dropout: absent returns prove nothing), or the ray passes farther away: no evidence.
@@ -20,9 +22,11 @@ ray), so it costs a few array operations per sweep. Thin structures survive beca
 close to the centroid of what was hit (a pole's centroid lies on the pole); surfaces seen at grazing
 angles (the road far ahead, facades along the street) because a ray running along a surface is not
 taken to see through the voxels on it (the grazing slack) and because they are hit about as often as
-rays skim past them; the ground also because voxels less than ``ground_band_m`` above the lowest
-point of the 3x3 one-metre cells around them are never tested. :func:`outvoted_voxels` is the vote
-over the whole run that :class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
+rays skim past them, and because a ray that passes in front of a voxel's own surface (its points'
+mean normal, from their sweep's range image) is not taken to have gone through it; the ground also
+because voxels less than ``ground_band_m`` above the lowest point of the 3x3 one-metre cells around
+them are never tested. :func:`outvoted_voxels` is the vote over the whole run that
+:class:`~lidar3d.mapping.dense_map.DenseMap` adds at the end.
 
 Records: :class:`PlacedSweep` in, :class:`FilteredSweep` out (a window of sweeps later: a sweep is
 decided once the probes after it are known). Frames: world = the map frame; lidar = the sweep's
@@ -31,7 +35,6 @@ deskewed lidar frame at its stamp.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from collections import deque
 from dataclasses import dataclass
@@ -39,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.config import DynamicConfig
-from lidar3d.mapping.voxel import voxel_keys
+from lidar3d.mapping.voxel import voxel_key_step, voxel_keys
 
 __all__ = [
     "DynamicFilter",
@@ -47,13 +50,15 @@ __all__ = [
     "PlacedSweep",
     "ProbeStack",
     "SweepProbe",
+    "mostly_dynamic_clusters",
     "outvoted_voxels",
+    "point_normals",
+    "sin_grazing",
+    "surface_normals",
     "voxel_evidence",
 ]
 
 _GROUND_CELL_M = 1.0  # cell of the local ground height (lowest point of the 3x3 cells around)
-_NO_POINTS = np.zeros((0, 3))
-_NO_RINGS = np.zeros(0, np.int64)
 _NEIGHBOUR_SHIFTS = tuple((di << 32) + dj for di in (-1, 0, 1) for dj in (-1, 0, 1))
 
 
@@ -127,36 +132,57 @@ class SweepProbe:
         cls, points_lidar: np.ndarray, ring: np.ndarray, T_world_lidar: np.ndarray, n_rings: int, n_bins: int
     ) -> SweepProbe:
         """The probe of (N,3) deskewed lidar-frame points with their (N,) rings, at pose (4,4)."""
+        image = _RangeImage.of(points_lidar, ring, n_rings, n_bins)
+        T = T_world_lidar
+        return cls(
+            T[:3, 3].copy(), T[:3, :3].copy(), image.points, image.range_m, sin_grazing(image.points, image.range_m)
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class _RangeImage:
+    """Points in a (rings, bins) image, the nearest return per pixel.
+
+    Attributes:
+        points: (rings, bins, 3) float32 lidar frame, 0 where the pixel holds no return.
+        range_m: (rings, bins) float32, 0 where none.
+        pixel: (N,) flat pixel of each point put in.
+        point_range_m: (N,) float32 each point's range.
+    """
+
+    points: np.ndarray
+    range_m: np.ndarray
+    pixel: np.ndarray
+    point_range_m: np.ndarray
+
+    @classmethod
+    def of(
+        cls, points_lidar: np.ndarray, ring: np.ndarray, n_rings: int, n_bins: int, *, nearest: bool = True
+    ) -> _RangeImage:
+        """The image of (N,3) points and their (N,) rings; ``nearest=False`` keeps whichever point of
+        a pixel numpy writes last instead of the nearest (no sort: a third of the time; pixels
+        holding two points are rare)."""
         points = np.asarray(points_lidar, dtype=np.float64)
         range_m = np.linalg.norm(points, axis=1)
-        column = _azimuth_bin(points, n_bins)
-        pixel = np.asarray(ring).astype(np.int64) * n_bins + column
-        order = np.argsort(-range_m, kind="stable")  # nearest written last wins
+        pixel = np.asarray(ring).astype(np.int64) * n_bins + _azimuth_bin(points, n_bins)
+        order = np.argsort(-range_m, kind="stable") if nearest else slice(None)  # nearest written last wins
         image_points = np.zeros((n_rings * n_bins, 3), np.float32)
         image_range = np.zeros(n_rings * n_bins, np.float32)
         image_points[pixel[order]] = points[order]
         image_range[pixel[order]] = range_m[order]
-        T = T_world_lidar
-        grid_points = image_points.reshape(n_rings, n_bins, 3)
-        grid_range = image_range.reshape(n_rings, n_bins)
-        return cls(T[:3, 3].copy(), T[:3, :3].copy(), grid_points, grid_range, sin_grazing(grid_points, grid_range))
+        return cls(
+            image_points.reshape(n_rings, n_bins, 3),
+            image_range.reshape(n_rings, n_bins),
+            pixel,
+            range_m.astype(np.float32),
+        )
 
 
-def sin_grazing(points: np.ndarray, range_m: np.ndarray) -> np.ndarray:
-    """Per pixel of a range image, the sine of the angle between the ray and the surface it hit.
-
-    The surface is spanned by the pixel's neighbours in azimuth (two columns away) and in ring, on
-    each axis the neighbour nearer in range (the same surface, more likely): its normal is their
-    cross product. A ray meeting a wall head-on gives 1; one skimming the road far ahead a few
-    hundredths.
-
-    Args:
-        points: (rings, bins, 3) nearest return per pixel, lidar frame (0 where none).
-        range_m: (rings, bins) its range, 0 where none.
-
-    Returns:
-        (rings, bins) float32 in [0, 1]; 1 where a neighbour on either axis is missing.
-    """
+def _cross_normals(points: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel of a range image (``points`` (rings, bins, 3), ``range_m`` (rings, bins), 0 where
+    none) the (rings, bins, 3) unnormalised normal of the surface it hit, and (rings, bins) whether
+    it is known: the cross product of the tangents to the pixel's neighbours in azimuth (two columns
+    away) and in ring, on each axis the neighbour nearer in range (the same surface, more likely)."""
     valid = range_m > 0.0
 
     def tangent(before: np.ndarray, after: np.ndarray, ok_before: np.ndarray, ok_after: np.ndarray):
@@ -174,11 +200,54 @@ def sin_grazing(points: np.ndarray, range_m: np.ndarray) -> np.ndarray:
     valid_below = np.concatenate([np.zeros_like(valid[:1]), valid[:-1]])
     valid_above = np.concatenate([valid[1:], np.zeros_like(valid[:1])])
     along_ring, ok_ring = tangent(below, above, valid_below, valid_above)
-    normal = np.cross(along_azimuth, along_ring)
+    return np.cross(along_azimuth, along_ring), valid & ok_azimuth & ok_ring
+
+
+def sin_grazing(points: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Per pixel of a range image, the sine of the angle between the ray and the surface it hit
+    (:func:`_cross_normals`). A ray meeting a wall head-on gives 1; one skimming the road far ahead
+    a few hundredths.
+
+    Args:
+        points: (rings, bins, 3) nearest return per pixel, lidar frame (0 where none).
+        range_m: (rings, bins) its range, 0 where none.
+
+    Returns:
+        (rings, bins) float32 in [0, 1]; 1 where a neighbour on either axis is missing.
+    """
+    normal, known = _cross_normals(points, range_m)
     norm = np.linalg.norm(normal, axis=-1) * np.maximum(range_m, 1e-9)
     sine = np.abs(np.einsum("rbk,rbk->rb", normal, points)) / np.maximum(norm, 1e-12)
-    known = valid & ok_azimuth & ok_ring & (norm > 1e-12)
+    known &= norm > 1e-12
     return np.where(known, np.clip(sine, 0.0, 1.0), 1.0).astype(np.float32)
+
+
+def surface_normals(points: np.ndarray, range_m: np.ndarray) -> np.ndarray:
+    """Per pixel of a range image, the unit normal of the surface it hit (:func:`_cross_normals`),
+    turned towards the sensor (``normal . point < 0``).
+
+    Args:
+        points: (rings, bins, 3) nearest return per pixel, lidar frame (0 where none).
+        range_m: (rings, bins) its range, 0 where none.
+
+    Returns:
+        (rings, bins, 3) float32 unit normals, lidar frame; 0 where unknown.
+    """
+    normal, known = _cross_normals(points, range_m)
+    norm = np.linalg.norm(normal, axis=-1)
+    known &= norm > 1e-12
+    facing = -np.sign(np.einsum("rbk,rbk->rb", normal, points))
+    scale = np.where(known, facing / np.maximum(norm, 1e-12), 0.0)
+    return (normal * scale[..., None]).astype(np.float32)
+
+
+def point_normals(points_lidar: np.ndarray, ring: np.ndarray, n_rings: int, n_bins: int) -> np.ndarray:
+    """(N,3) float32 the :func:`surface_normals` of (N,3) lidar-frame points with their (N,) rings, in
+    the lidar frame; 0 where unknown, also for a point another return of its pixel displaced."""
+    image = _RangeImage.of(points_lidar, ring, n_rings, n_bins, nearest=False)
+    normal = surface_normals(image.points, image.range_m).reshape(-1, 3)[image.pixel]
+    normal[image.range_m.reshape(-1)[image.pixel] != image.point_range_m] = 0.0
+    return normal
 
 
 def _azimuth_bin(points: np.ndarray, n_bins: int) -> np.ndarray:
@@ -225,6 +294,7 @@ def voxel_evidence(
     slots: np.ndarray,
     elevation_rad: np.ndarray,
     config: DynamicConfig,
+    normals_world: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hits and misses of each voxel centroid over the probes in ``slots`` of ``stack`` (see the
     module docstring).
@@ -236,10 +306,18 @@ def voxel_evidence(
     probe's :attr:`SweepProbe.sin_grazing`). So the road a ray skims, or a facade it runs along, is
     not seen through; what stood higher above that surface than the offset is.
 
+    With ``normals_world``, the voxel's own surface counts too: a ray that passes in front of it
+    (on the side its sweep saw it from) by more than ``surface_tolerance_m`` plus
+    ``surface_angle_deg`` (the angular error between the two sweeps' poses) times the range did not
+    go through it, however far it returns: a ray skimming over a car's roof, or along a slope,
+    passes the roof's voxels within the pass tolerance, and says nothing about them.
+
     Args:
         centroids_world: (V,3) voxel centroids, world frame.
         stack: the probes; ``slots``: (P,) which of them to use.
         elevation_rad: (rings,) ascending beam elevations of the sensor.
+        normals_world: optional (V,3) mean of each voxel's unit surface normals, each turned towards
+            the sensor that saw it (shorter than 1 where they disagree, 0 where unknown).
 
     Returns:
         (V,) int hits and (V,) int misses.
@@ -270,8 +348,17 @@ def voxel_evidence(
         offset = config.pass_tolerance_m + along * np.tan(np.deg2rad(config.pose_angle_deg))
         sine = stack.sin_grazing.reshape(-1)[pixel].astype(np.float64)
         beyond = np.maximum(margin, offset / np.maximum(sine, 1e-3))
+    through = passes & (return_m > along + beyond)
+    if normals_world is not None:
+        # How far in front of the voxel's surface the ray passes: n . (closest point of the ray - c).
+        m = np.matmul(normals_world[None], stack.R_world_lidar[slots]).reshape(-1, 3)
+        m_ray = (
+            m[:, 0] * flat[3 * pixel] + m[:, 1] * flat[3 * pixel + 1] + m[:, 2] * flat[3 * pixel + 2]
+        ) / np.maximum(return_m, 1e-9)
+        in_front = along * m_ray - (m[:, 0] * x + m[:, 1] * y + m[:, 2] * z)
+        through &= in_front <= config.surface_tolerance_m + along * np.tan(np.deg2rad(config.surface_angle_deg))
     voxel = np.tile(np.arange(n_voxels), slots.size)
-    misses = np.bincount(voxel[passes & (return_m > along + beyond)], minlength=n_voxels)
+    misses = np.bincount(voxel[through], minlength=n_voxels)
     hits = np.bincount(voxel[passes & (np.abs(return_m - along) <= margin)], minlength=n_voxels)
     return hits, misses
 
@@ -288,6 +375,28 @@ def outvoted_voxels(
     _, in_static, in_dynamic = np.intersect1d(static_keys, dynamic_keys, assume_unique=True, return_indices=True)
     outvoted = dynamic_counts[in_dynamic] > vote_ratio * static_counts[in_static]
     return static_keys[in_static[outvoted]]
+
+
+@dataclass(frozen=True, slots=True)
+class _WaitingSweep:
+    """A sweep waiting for the probes of its window, grouped by voxel.
+
+    Attributes:
+        index: its place in the input (0, 1, ...).
+        points_world: (N,3) world points; ``intensity`` (N,) float32.
+        origin_world: (3,) its sensor position.
+        keys: (V,) sorted voxel keys; ``inverse``: (N,) int32 each point's voxel.
+        mean_normals: (V,3) float32 per voxel the mean of its points' unit surface normals (world frame,
+            turned towards the sensor; 0 for a point whose normal is unknown), or None.
+    """
+
+    index: int
+    points_world: np.ndarray
+    intensity: np.ndarray
+    origin_world: np.ndarray
+    keys: np.ndarray
+    inverse: np.ndarray
+    mean_normals: np.ndarray | None
 
 
 class DynamicFilter:
@@ -308,7 +417,7 @@ class DynamicFilter:
         self.config = config
         self._elevation_rad = np.deg2rad(np.asarray(elevation_deg, dtype=np.float64))
         self._n_bins = int(n_columns)
-        self._sweeps: deque[tuple[int, PlacedSweep]] = deque()
+        self._sweeps: deque[_WaitingSweep] = deque()
         self._probe_slots = 2 * (config.window_scans // config.probe_every) + 3
         self._stack = ProbeStack(self._probe_slots, len(self._elevation_rad), self._n_bins)
         self._slot_sweep = np.full(self._probe_slots, -(10**9), np.int64)  # sweep index of each slot's probe
@@ -328,10 +437,9 @@ class DynamicFilter:
             self._stack.put(slot, SweepProbe.of(sweep, len(self._elevation_rad), self._n_bins))
             self._slot_sweep[slot] = index
             self._n_probes += 1
-        # Waiting for its window it needs only its world points: the lidar frame ones go (half the memory).
-        self._sweeps.append((index, dataclasses.replace(sweep, points_lidar=_NO_POINTS, ring=_NO_RINGS)))
+        self._sweeps.append(self._grouped(index, sweep))
         decided = []
-        while self._sweeps and self._sweeps[0][0] + self.config.window_scans <= index:
+        while self._sweeps and self._sweeps[0].index + self.config.window_scans <= index:
             decided.append(self._decide())
         return decided
 
@@ -339,30 +447,49 @@ class DynamicFilter:
         """End of input: decide the sweeps still waiting (their window ends early)."""
         return [self._decide() for _ in range(len(self._sweeps))]
 
+    def _grouped(self, index: int, sweep: PlacedSweep) -> _WaitingSweep:
+        """``sweep`` grouped by voxel, with the surface normals of its voxels when they are used:
+        what waits for its window (its lidar frame points go: half the memory)."""
+        keys, inverse = np.unique(voxel_keys(sweep.points_world, self.config.voxel_m), return_inverse=True)
+        inverse = inverse.reshape(-1).astype(np.int32)
+        mean_normals = None
+        if self.config.surface_side:
+            normals = point_normals(sweep.points_lidar, sweep.ring, len(self._elevation_rad), self._n_bins)
+            normals = normals @ sweep.T_world_lidar[:3, :3].T
+            counts = np.bincount(inverse, minlength=keys.size)
+            mean_normals = np.column_stack(
+                [np.bincount(inverse, weights=normals[:, d], minlength=keys.size) / counts for d in range(3)]
+            ).astype(np.float32)
+        origin = sweep.T_world_lidar[:3, 3].copy()
+        return _WaitingSweep(index, sweep.points_world, sweep.intensity, origin, keys, inverse, mean_normals)
+
     def _decide(self) -> FilteredSweep:
-        index, sweep = self._sweeps.popleft()
+        waiting = self._sweeps.popleft()
+        index, keys, inverse, points = waiting.index, waiting.keys, waiting.inverse, waiting.points_world
         config = self.config
-        points = sweep.points_world
-        keys, inverse, counts = np.unique(voxel_keys(points, config.voxel_m), return_inverse=True, return_counts=True)
-        dynamic, valid_until = self._recalled(keys, index)
-        test = np.flatnonzero(valid_until < 0)
         sums = np.column_stack(
             [np.bincount(inverse, weights=points[:, d], minlength=keys.size) for d in range(3)]
-            + [np.bincount(inverse, weights=sweep.intensity, minlength=keys.size), counts]
+            + [np.bincount(inverse, weights=waiting.intensity, minlength=keys.size)]
+            + [np.bincount(inverse, minlength=keys.size)]
         )
-        centroids = sums[test, :3] / counts[test, None]
+        dynamic, valid_until = self._recalled(keys, index)
+        test = np.flatnonzero(valid_until < 0)
+        centroids = sums[test, :3] / sums[test, 4:5]
         # The band widens with range: a small tilt error of a pose lifts far ground by metres times it.
-        reach = np.linalg.norm(centroids - sweep.T_world_lidar[:3, 3], axis=1)
+        reach = np.linalg.norm(centroids - waiting.origin_world, axis=1)
         above = self._ground.height_above(centroids) > config.ground_band_m + config.ground_band_per_m * reach
         test, centroids = test[above], centroids[above]
+        normals = None if waiting.mean_normals is None else waiting.mean_normals[test]
         offset = self._slot_sweep - index
         slots = np.flatnonzero((offset != 0) & (np.abs(offset) <= config.window_scans))
-        hits, misses = voxel_evidence(centroids, self._stack, slots, self._elevation_rad, config)
+        hits, misses = voxel_evidence(centroids, self._stack, slots, self._elevation_rad, config, normals)
         dynamic[test] = (misses >= config.min_misses) & (misses >= config.miss_ratio * hits)
+        if config.cluster_share > 0.0:
+            dynamic[test] |= mostly_dynamic_clusters(keys[test], dynamic[test], hits + misses > 0, config.cluster_share)
         valid_until[valid_until < 0] = index + config.reuse_scans
         valid_until[test[(hits >= 2) & (misses == 0)]] = index + config.window_scans
         self._recent.appendleft((keys, dynamic, valid_until))
-        return FilteredSweep(points, sweep.intensity, dynamic[inverse], keys, sums, dynamic)
+        return FilteredSweep(points, waiting.intensity, dynamic[inverse], keys, sums, dynamic)
 
     def _recalled(self, keys: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray]:
         """The decisions of recent sweeps on ``keys`` (sorted) that still hold: (V,) dynamic flags and
@@ -380,6 +507,42 @@ class DynamicFilter:
             dynamic[open_[found]] = recent_dynamic[at[found]]
             valid_until[open_[found]] = recent_valid[at[found]]
         return dynamic, valid_until
+
+
+def mostly_dynamic_clusters(keys: np.ndarray, dynamic: np.ndarray, evidence: np.ndarray, share: float) -> np.ndarray:
+    """(V,) bool: the voxels of the connected clusters (26-neighbourhood) of a sweep's voxels whose
+    voxels with evidence are at least ``share`` dynamic (and one is).
+
+    A moving car's sides are seen through once it has gone, its roof is not (the rays that pass
+    over a roof do not go through it, and none passes below it from the side it was seen): the
+    roof goes with the rest of the car.
+
+    Args:
+        keys: (V,) sorted voxel keys (:func:`~lidar3d.mapping.voxel.voxel_keys`).
+        dynamic: (V,) bool, the voxel was seen through.
+        evidence: (V,) bool, some probe hit or saw through it.
+    """
+    n = keys.size
+    if not n or not dynamic.any():
+        return np.zeros(n, bool)
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
+    # The 13 neighbours after a voxel in key order: each pair once.
+    steps = [voxel_key_step(*d) for d in itertools.product((-1, 0, 1), repeat=3)]
+    rows, columns = [], []
+    for step in (s for s in steps if s > 0):
+        neighbour = keys + step
+        at = np.minimum(np.searchsorted(keys, neighbour), n - 1)
+        found = np.flatnonzero(keys[at] == neighbour)
+        rows.append(found)
+        columns.append(at[found])
+    row, column = np.concatenate(rows), np.concatenate(columns)
+    graph = coo_matrix((np.ones(row.size, np.int8), (row, column)), shape=(n, n))
+    _, cluster = connected_components(graph, directed=False)
+    n_dynamic = np.bincount(cluster, weights=dynamic)
+    n_evidence = np.bincount(cluster, weights=evidence)
+    return ((n_dynamic >= share * n_evidence) & (n_dynamic > 0))[cluster]
 
 
 class _GroundGrid:

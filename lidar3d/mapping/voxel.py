@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VoxelMap", "group_by_voxel", "voxel_downsample", "voxel_keys"]
+__all__ = ["VoxelMap", "group_by_voxel", "voxel_downsample", "voxel_key_step", "voxel_keys"]
 
 _OFFSET = 1 << 20  # voxel indices are shifted into [0, 2^21) per axis before packing
 
@@ -16,6 +16,13 @@ def voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
     """
     ijk = np.floor(points / voxel_m).astype(np.int64) + _OFFSET
     return (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
+
+
+def voxel_key_step(di: int, dj: int, dk: int) -> int:
+    """What to add to a :func:`voxel_keys` key for the key of the voxel (di, dj, dk) voxels away
+    (each within +-1: the neighbour's indices stay in range for any voxel not at the edge of the
+    packed range)."""
+    return (di << 42) + (dj << 21) + dk
 
 
 def voxel_downsample(points: np.ndarray, voxel_m: float, values: np.ndarray | None = None):
