@@ -346,3 +346,25 @@ def test_a_cluster_mostly_seen_through_goes_whole_one_mostly_hit_stays():
     # The key steps the clusters use are those of the neighbouring voxels.
     for d in ((1, 0, 0), (0, -1, 1), (-1, 1, -1)):
         np.testing.assert_array_equal(voxel_keys(points + np.array(d) * VOXEL_M, VOXEL_M), keys + voxel_key_step(*d))
+
+
+def test_a_voxel_gone_with_its_cluster_is_not_kept_as_clearly_static(city):
+    """Only a voxel judged static may hold its decision for the whole window (a voxel hit twice and
+    seen through by none, but in a cluster gone whole, is dynamic: it is tested again soon)."""
+    from lidar3d.mapping.free_space import DynamicFilter
+
+    config = dataclasses.replace(Config().dynamic, window_scans=15, probe_every=1)
+    model = Config().sensor.resolved_model
+    dynamic_filter = DynamicFilter(config, model.elevation_deg, model.n_columns)
+    long_held = n_dynamic = decided = 0
+    for scan, T, world, _ in city:
+        r = np.linalg.norm(scan.points, axis=1)
+        keep = (r >= Config().sensor.min_range_m) & (r <= model.max_range_m)
+        sweep = PlacedSweep(scan.points[keep], world[keep], scan.ring[keep], scan.intensity[keep], T)
+        for _ in dynamic_filter.add(sweep):  # sweeps are decided in order: this one is number `decided`
+            _, dynamic, valid_until = dynamic_filter._recent[0]
+            long_held += int((dynamic & (valid_until == decided + config.window_scans)).sum())
+            n_dynamic += int(dynamic.sum())
+            decided += 1
+    assert n_dynamic > 100
+    assert long_held == 0

@@ -487,7 +487,8 @@ class DynamicFilter:
         if config.cluster_share > 0.0:
             dynamic[test] |= mostly_dynamic_clusters(keys[test], dynamic[test], hits + misses > 0, config.cluster_share)
         valid_until[valid_until < 0] = index + config.reuse_scans
-        valid_until[test[(hits >= 2) & (misses == 0)]] = index + config.window_scans
+        # clearly static: hit twice, seen through by no probe, not in a cluster gone whole
+        valid_until[test[(hits >= 2) & (misses == 0) & ~dynamic[test]]] = index + config.window_scans
         self._recent.appendleft((keys, dynamic, valid_until))
         return FilteredSweep(points, waiting.intensity, dynamic[inverse], keys, sums, dynamic)
 
