@@ -132,6 +132,8 @@ def grid_run(
     reach = params.max_range_m
     bounds = np.array([positions[:, :2].min(axis=0) - reach, positions[:, :2].max(axis=0) + reach])
     builder = OccupancyGridBuilder(params, ground, bounds)
+    for placed in placed_scans:
+        builder.note_obstacles(placed.points_world, placed.ground)
     n_scans = n_left_out = 0
     for placed in placed_scans:
         n_left_out += placed.n_moving

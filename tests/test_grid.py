@@ -420,13 +420,45 @@ def test_the_ray_casting_kernel_gives_the_array_version_s_log_odds_bit_for_bit(p
 
 
 def test_lidar3d_grid_writes_the_array_version_s_map_byte_for_byte(loop_run, tmp_path, monkeypatch):
+    """With no obstacle tops noted (the array version has no such rule) the command's map is the
+    array version's, byte for byte."""
     _, run = loop_run
+    monkeypatch.setattr(OccupancyGridBuilder, "note_obstacles", lambda self, points, on_ground=None: None)
     new = grid_run(run, tmp_path / "new")
     monkeypatch.setattr("lidar3d.grid.OccupancyGridBuilder", _ReferenceBuilder)
     reference = grid_run(run, tmp_path / "reference")
     np.testing.assert_array_equal(new.grid.log_odds, reference.grid.log_odds)
     assert new.pgm.read_bytes() == reference.pgm.read_bytes()
     assert new.yaml.read_bytes() == reference.yaml.read_bytes()
+
+
+def test_a_beam_over_a_car_roof_does_not_free_it_one_through_the_car_s_space_does():
+    """A car's roof 1.45 m above flat ground, 10-12 m ahead of a sensor 1.8 m up, and a wall 30 m
+    ahead: beams to the wall pass over the roof inside the band. With the roof's points noted first,
+    the roof stays occupied; once the car has gone, beams through its space below the roof free it."""
+    ground = _ground(lambda xy: np.zeros(len(xy)))
+    params = GridParams()
+    bounds = np.array([[-5.0, -5.0], [35.0, 5.0]])
+    sensor = np.array([0.0, 0.0, 1.8])
+    y = np.linspace(-0.5, 0.5, 21)
+    roof = np.array([[x, yy, 1.45] for x in np.arange(10.05, 12.0, 0.1) for yy in y])
+    wall = np.array([[30.0, yy * 3.0, 1.9] for yy in np.linspace(-0.5, 0.5, 61)])
+    roof_cells = (np.floor((roof[:, 0] + 5.0) / 0.1).astype(int), np.floor((roof[:, 1] + 5.0) / 0.1).astype(int))
+    for noted, occupied_share in ((False, 0.05), (True, 0.95)):
+        builder = OccupancyGridBuilder(params, ground, bounds)
+        if noted:
+            builder.note_obstacles(np.vstack([roof, wall]))
+        builder.add(sensor, roof)  # the roof's own returns, once
+        for _ in range(10):
+            builder.add(sensor, wall)  # beams over the roof, 1.83-1.84 m above the ground there
+        share = (builder.grid().log_odds[roof_cells] > 0.62).mean()
+        assert (share >= occupied_share) if noted else (share <= occupied_share), (noted, share)
+    # The car gone: beams 1.22-1.32 m above the ground where it stood (below its roof), to a low wall.
+    low_wall = wall.copy()
+    low_wall[:, 2] = 0.35
+    for _ in range(10):
+        builder.add(sensor, low_wall)
+    assert (builder.grid().log_odds[roof_cells] < 0).mean() > 0.5
 
 
 # ---------------------------------------------------------------- the local ground model

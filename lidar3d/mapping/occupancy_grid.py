@@ -5,7 +5,10 @@ For every point of a sweep (world frame, moving objects already left out) the be
 is followed in the plane: its height above the local ground is taken to vary linearly between the
 sensor and the point (the ground height under each end, from :class:`GroundModel`), so on a hill the
 band follows the slope. Cells the beam crosses while it is inside the band ``[low, high]`` are
-*free*, the cell of the point is *occupied* when the point lies inside the band. Within one sweep
+*free*, the cell of the point is *occupied* when the point lies inside the band. A cell where an
+obstacle was seen (its highest obstacle point over all sweeps, noted first:
+:meth:`OccupancyGridBuilder.note_obstacles`) is freed only by a beam passing below that height: a
+beam over a car's roof or a low wall, inside the band, says nothing of what stands under it. Within one sweep
 the beams are gathered per azimuth bin (the farthest free reach of the bin, cast once) and a cell
 counts once: occupied wins over free. Each sweep adds ``hit_log_odds`` to its occupied cells and
 ``miss_log_odds`` to its free ones, clamped to ``[-clamp, clamp]`` (as OctoMap and ROS gmapping
@@ -39,6 +42,8 @@ class GridParams:
         hit_log_odds: added to an occupied cell per sweep (p = 0.77).
         miss_log_odds: added to a free cell per sweep (p = 0.4).
         clamp_log_odds: the log-odds stay within +- this.
+        top_margin_m: a beam frees a cell with obstacles noted (:meth:`OccupancyGridBuilder.note_obstacles`)
+            only where it passes this far below the highest of them.
     """
 
     resolution_m: float = 0.1
@@ -48,6 +53,7 @@ class GridParams:
     hit_log_odds: float = 1.2
     miss_log_odds: float = -0.4
     clamp_log_odds: float = 3.5
+    top_margin_m: float = 0.1
 
     def __post_init__(self) -> None:
         if not self.resolution_m > 0:
@@ -289,12 +295,31 @@ class OccupancyGridBuilder:
         self.shape = tuple(int(v) for v in np.ceil((np.asarray(bounds_xy_m[1], float) - self.origin_xy_m) / res) + 1)
         self._log_odds = np.zeros(self.shape[0] * self.shape[1], np.float32)
         self._mark = np.full(self._log_odds.size, -1, np.int32)
+        # per cell the height above ground of the highest obstacle point noted there (-inf: none)
+        self._top_m = np.full(self._log_odds.size, -np.inf, np.float32)
         self._n_sweeps = 0
         n_bins = params.azimuth_bins
         bin_angle_rad = (np.arange(n_bins) + 0.5) * (2 * np.pi / n_bins) - np.pi
         # Direction of each bin's centre line, float32: a sample k cells out is k * (cos, sin) cells away.
         self._bin_direction = np.stack([np.cos(bin_angle_rad), np.sin(bin_angle_rad)], axis=1).astype(np.float32)
         self._levels = _casting_levels(res, n_bins)
+
+    def note_obstacles(self, points_world: np.ndarray, on_ground: np.ndarray | None = None) -> None:
+        """Note the obstacle points of a sweep before any is ray cast: (N,3) world points, (N,) bool
+        ground marks as for :meth:`add`. A cell with an obstacle noted is freed only by a beam that
+        passes through it below the highest obstacle point noted there (less ``top_margin_m``): a beam
+        passing over a car's roof or a low wall, inside the band, says nothing of what is under it."""
+        p = self.params
+        points_world = np.ascontiguousarray(points_world, dtype=np.float64).reshape(-1, 3)
+        height = points_world[:, 2] - self.ground.height_at(points_world[:, :2])
+        obstacle = (height >= p.band_m[0]) & (height <= p.band_m[1])
+        if on_ground is not None:
+            obstacle &= ~np.asarray(on_ground, bool)
+        ij = np.floor((points_world[obstacle, :2] - self.origin_xy_m) / p.resolution_m).astype(np.int64)
+        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
+        np.maximum.at(
+            self._top_m, ij[inside, 0] * self.shape[1] + ij[inside, 1], height[obstacle][inside].astype(np.float32)
+        )
 
     def add(self, origin_world: np.ndarray, points_world: np.ndarray, on_ground: np.ndarray | None = None) -> None:
         """Ray cast one sweep: sensor position (3,) and its (N,3) points, world frame; ``on_ground``
@@ -345,6 +370,8 @@ class OccupancyGridBuilder:
             self.shape[1],
             self._log_odds,
             self._mark,
+            self._top_m,
+            p.top_margin_m,
         )
 
     def grid(self) -> OccupancyGrid:
@@ -400,6 +427,8 @@ def _ray_cast_sweep(
     ny: int,
     log_odds: np.ndarray,
     mark: np.ndarray,
+    top_m: np.ndarray,
+    top_margin_m: float,
 ) -> None:
     """Ray cast one sweep into the flat grid ``log_odds`` (float32) / ``mark`` (int32, the last sweep
     that updated each cell), in place: see the module docstring and :class:`OccupancyGridBuilder`.
@@ -413,7 +442,9 @@ def _ray_cast_sweep(
     ``sensor_cell`` (2,) the sensor in cell units from the grid's corner). Free cells take
     ``miss_log_odds`` (float32 arithmetic, floored at ``free_floor``), occupied cells
     ``hit_log_odds`` (``hit_after_free`` where the sweep freed them first; float64, capped at
-    ``clamp_log_odds``); a cell counts once per sweep."""
+    ``clamp_log_odds``); a cell counts once per sweep. A cell with an obstacle noted (``top_m``, the
+    flat grid's highest obstacle height above ground per cell, -inf where none) is freed only where
+    the lowest of the bin's beams over that sample passes ``top_margin_m`` below it."""
     n_bins = bin_direction.shape[0]
     gx, gy = ground_height_m.shape[0], ground_height_m.shape[1]
     nx = log_odds.size // ny
@@ -423,6 +454,12 @@ def _ray_cast_sweep(
     blocked = np.full(n_bins, np.inf)
     hits = np.empty(points_world.shape[0], np.int64)
     n_hits = 0
+    # every beam's stretch in the band: bin, from, to (m in the plane) and height rise per metre
+    beam_bin = np.empty(points_world.shape[0], np.int64)
+    beam_from = np.empty(points_world.shape[0])
+    beam_to = np.empty(points_world.shape[0])
+    beam_rise = np.empty(points_world.shape[0])
+    n_beams = 0
     for k in range(points_world.shape[0]):
         length = length_m[k]
         if not (length > resolution_m and length <= max_range_m):
@@ -457,6 +494,11 @@ def _ray_cast_sweep(
         if free_to > free_from:
             start[b] = min(start[b], free_from)
             reach[b] = max(reach[b], free_to)
+            beam_bin[n_beams] = b
+            beam_from[n_beams] = free_from
+            beam_to[n_beams] = free_to
+            beam_rise[n_beams] = rise / length
+            n_beams += 1
         if band_low_m <= height <= band_high_m and not on_ground[k]:
             # The nearest obstacle in the band ends the free space of its azimuth.
             blocked[b] = min(blocked[b], end_free)
@@ -465,6 +507,13 @@ def _ray_cast_sweep(
             if 0 <= i < nx and 0 <= j < ny:
                 hits[n_hits] = i * ny + j
                 n_hits += 1
+    # the beams of each bin, contiguous: bin b's are order[first[b]:first[b + 1]]
+    order = np.argsort(beam_bin[:n_beams], kind="mergesort")
+    first = np.zeros(n_bins + 1, np.int64)
+    for k in range(n_beams):
+        first[beam_bin[k] + 1] += 1
+    for b in range(n_bins):
+        first[b + 1] += first[b]
     for level in range(levels.shape[0]):
         near, far, stride = levels[level, 0], levels[level, 1], int(levels[level, 2])
         for b in range(0, n_bins, stride):
@@ -478,9 +527,21 @@ def _ray_cast_sweep(
                 i = min(max(int(sensor_cell[0] + cos * index), 0), nx - 1)
                 j = min(max(int(sensor_cell[1] + sin * index), 0), ny - 1)
                 cell = i * ny + j
-                if mark[cell] != sweep:
-                    mark[cell] = sweep
-                    log_odds[cell] = max(log_odds[cell] + miss_log_odds, free_floor)
+                if mark[cell] == sweep:
+                    continue
+                top = top_m[cell]
+                if top > -np.inf:
+                    # the lowest beam of the bin over this sample must pass below what was seen here
+                    distance = sample * resolution_m
+                    lowest = np.inf
+                    for k in range(first[b], first[b + 1]):
+                        beam = order[k]
+                        if beam_from[beam] <= distance <= beam_to[beam]:
+                            lowest = min(lowest, sensor_height_m + beam_rise[beam] * distance)
+                    if not lowest < top - top_margin_m:
+                        continue
+                mark[cell] = sweep
+                log_odds[cell] = max(log_odds[cell] + miss_log_odds, free_floor)
     # Occupied wins over free; a cell hit by several points counts once (all read, then written).
     updated = np.empty(n_hits, np.float64)
     for h in range(n_hits):
