@@ -461,6 +461,43 @@ def test_a_beam_over_a_car_roof_does_not_free_it_one_through_the_car_s_space_doe
     assert (builder.grid().log_odds[roof_cells] < 0).mean() > 0.5
 
 
+def test_a_roof_in_a_dip_is_judged_by_the_beam_s_true_height_and_a_low_top_can_still_be_freed():
+    """The ground dips 0.9 m around x = 10 m, a roof stands 1.45 m above the dip: a beam from the
+    sensor (1.8 m up at x = 0) to the road at x = 19 m passes 0.3 m over the roof, though its height
+    above the ground line drawn from sensor to road says 0.85 m. A cell whose only obstacle stood
+    0.35 m up (under band low + margin, where no beam is cast) is freed by a beam in the band just
+    over it (0.36 m)."""
+
+    def dip(xy):
+        return -0.9 * np.exp(-(((xy[:, 0] - 11.0) / 2.0) ** 2))
+
+    ground = _ground(dip)
+    bounds = np.array([[-5.0, -5.0], [35.0, 5.0]])
+    y = np.linspace(-0.5, 0.5, 21)
+    roof_xy = np.array([[x, yy] for x in np.arange(10.05, 12.0, 0.1) for yy in y])
+    roof = np.column_stack([roof_xy, dip(roof_xy) + 1.45])
+    road_xy = np.column_stack([np.full(61, 19.0), np.linspace(-0.9, 0.9, 61)])
+    road = np.column_stack([road_xy, dip(road_xy)])
+    sensor = np.array([0.0, 0.0, dip(np.zeros((1, 2)))[0] + 1.8])
+    builder = OccupancyGridBuilder(GridParams(), ground, bounds)
+    builder.note_obstacles(roof)
+    builder.add(sensor, roof)
+    for _ in range(10):
+        builder.add(sensor, road)
+    cells = builder.grid().cell_of(roof[:, :2])
+    assert (builder.grid().log_odds[cells[0], cells[1]] > 0.62).mean() > 0.95
+    # A low obstacle once (0.35 m up), then beams in the band through its cell.
+    flat = _ground(lambda xy: np.zeros(len(xy)))
+    builder = OccupancyGridBuilder(GridParams(), flat, bounds)
+    low = np.array([[8.05, 0.05, 0.35]])
+    builder.note_obstacles(low)
+    builder.add(np.array([0.0, 0.0, 1.8]), low)
+    beyond = np.column_stack([np.full(41, 8.4), np.linspace(-0.2, 0.2, 41), np.full(41, 0.3)])  # 0.36 m over it
+    for _ in range(10):
+        builder.add(np.array([0.0, 0.0, 1.8]), beyond)
+    assert builder.grid().log_odds[130, 50] < 0
+
+
 # ---------------------------------------------------------------- the local ground model
 
 

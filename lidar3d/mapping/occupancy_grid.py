@@ -7,8 +7,9 @@ sensor and the point (the ground height under each end, from :class:`GroundModel
 band follows the slope. Cells the beam crosses while it is inside the band ``[low, high]`` are
 *free*, the cell of the point is *occupied* when the point lies inside the band. A cell where an
 obstacle was seen (its highest obstacle point over all sweeps, noted first:
-:meth:`OccupancyGridBuilder.note_obstacles`) is freed only by a beam passing below that height: a
-beam over a car's roof or a low wall, inside the band, says nothing of what stands under it. Within one sweep
+:meth:`OccupancyGridBuilder.note_obstacles`) is freed only by a beam passing below that point (world
+z, so a dip or crest of the ground between sensor and point does not matter): a beam over a car's
+roof or a low wall, inside the band, says nothing of what stands under it. Within one sweep
 the beams are gathered per azimuth bin (the farthest free reach of the bin, cast once) and a cell
 counts once: occupied wins over free. Each sweep adds ``hit_log_odds`` to its occupied cells and
 ``miss_log_odds`` to its free ones, clamped to ``[-clamp, clamp]`` (as OctoMap and ROS gmapping
@@ -43,7 +44,8 @@ class GridParams:
         miss_log_odds: added to a free cell per sweep (p = 0.4).
         clamp_log_odds: the log-odds stay within +- this.
         top_margin_m: a beam frees a cell with obstacles noted (:meth:`OccupancyGridBuilder.note_obstacles`)
-            only where it passes this far below the highest of them.
+            only where it passes this far below the highest of them (but never lower than this
+            above the band's bottom, where beams are cast).
     """
 
     resolution_m: float = 0.1
@@ -295,8 +297,8 @@ class OccupancyGridBuilder:
         self.shape = tuple(int(v) for v in np.ceil((np.asarray(bounds_xy_m[1], float) - self.origin_xy_m) / res) + 1)
         self._log_odds = np.zeros(self.shape[0] * self.shape[1], np.float32)
         self._mark = np.full(self._log_odds.size, -1, np.int32)
-        # per cell the height above ground of the highest obstacle point noted there (-inf: none)
-        self._top_m = np.full(self._log_odds.size, -np.inf, np.float32)
+        # per cell the world z a beam must pass below to free it (-inf: no obstacle noted, any beam)
+        self._free_below_z = np.full(self._log_odds.size, -np.inf)
         self._n_sweeps = 0
         n_bins = params.azimuth_bins
         bin_angle_rad = (np.arange(n_bins) + 0.5) * (2 * np.pi / n_bins) - np.pi
@@ -307,19 +309,25 @@ class OccupancyGridBuilder:
     def note_obstacles(self, points_world: np.ndarray, on_ground: np.ndarray | None = None) -> None:
         """Note the obstacle points of a sweep before any is ray cast: (N,3) world points, (N,) bool
         ground marks as for :meth:`add`. A cell with an obstacle noted is freed only by a beam that
-        passes through it below the highest obstacle point noted there (less ``top_margin_m``): a beam
-        passing over a car's roof or a low wall, inside the band, says nothing of what is under it."""
+        passes through it ``top_margin_m`` below the highest obstacle point noted there (world z): a
+        beam passing over a car's roof or a low wall, inside the band, says nothing of what is under
+        it. Below ``band low + top_margin_m`` above the ground no beam is cast, so a cell whose
+        obstacles stay under that height is freed by any beam in the band, as without the note."""
         p = self.params
         points_world = np.ascontiguousarray(points_world, dtype=np.float64).reshape(-1, 3)
-        height = points_world[:, 2] - self.ground.height_at(points_world[:, :2])
+        ground_z = self.ground.height_at(points_world[:, :2])
+        height = points_world[:, 2] - ground_z
         obstacle = (height >= p.band_m[0]) & (height <= p.band_m[1])
         if on_ground is not None:
-            obstacle &= ~np.asarray(on_ground, bool)
+            on_ground = np.asarray(on_ground, bool)
+            if on_ground.shape != (len(points_world),):
+                raise ValueError(f"on_ground must be ({len(points_world)},), got {on_ground.shape}")
+            obstacle &= ~on_ground
+        threshold_z = np.maximum(points_world[:, 2] - p.top_margin_m, ground_z + p.band_m[0] + p.top_margin_m)
         ij = np.floor((points_world[obstacle, :2] - self.origin_xy_m) / p.resolution_m).astype(np.int64)
         inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
-        np.maximum.at(
-            self._top_m, ij[inside, 0] * self.shape[1] + ij[inside, 1], height[obstacle][inside].astype(np.float32)
-        )
+        cells = ij[inside, 0] * self.shape[1] + ij[inside, 1]
+        np.maximum.at(self._free_below_z, cells, threshold_z[obstacle][inside])
 
     def add(self, origin_world: np.ndarray, points_world: np.ndarray, on_ground: np.ndarray | None = None) -> None:
         """Ray cast one sweep: sensor position (3,) and its (N,3) points, world frame; ``on_ground``
@@ -370,8 +378,8 @@ class OccupancyGridBuilder:
             self.shape[1],
             self._log_odds,
             self._mark,
-            self._top_m,
-            p.top_margin_m,
+            float(origin_world[2]),
+            self._free_below_z,
         )
 
     def grid(self) -> OccupancyGrid:
@@ -427,8 +435,8 @@ def _ray_cast_sweep(
     ny: int,
     log_odds: np.ndarray,
     mark: np.ndarray,
-    top_m: np.ndarray,
-    top_margin_m: float,
+    sensor_z: float,
+    free_below_z: np.ndarray,
 ) -> None:
     """Ray cast one sweep into the flat grid ``log_odds`` (float32) / ``mark`` (int32, the last sweep
     that updated each cell), in place: see the module docstring and :class:`OccupancyGridBuilder`.
@@ -442,9 +450,10 @@ def _ray_cast_sweep(
     ``sensor_cell`` (2,) the sensor in cell units from the grid's corner). Free cells take
     ``miss_log_odds`` (float32 arithmetic, floored at ``free_floor``), occupied cells
     ``hit_log_odds`` (``hit_after_free`` where the sweep freed them first; float64, capped at
-    ``clamp_log_odds``); a cell counts once per sweep. A cell with an obstacle noted (``top_m``, the
-    flat grid's highest obstacle height above ground per cell, -inf where none) is freed only where
-    the lowest of the bin's beams over that sample passes ``top_margin_m`` below it."""
+    ``clamp_log_odds``); a cell counts once per sweep. A cell with an obstacle noted
+    (``free_below_z``, flat like ``log_odds``: the world z a beam must pass below, -inf where none;
+    :meth:`OccupancyGridBuilder.note_obstacles`) is freed only where the lowest of the bin's beams
+    over that sample (world z from the sensor's ``sensor_z`` along the beam) passes below it."""
     n_bins = bin_direction.shape[0]
     gx, gy = ground_height_m.shape[0], ground_height_m.shape[1]
     nx = log_odds.size // ny
@@ -454,7 +463,7 @@ def _ray_cast_sweep(
     blocked = np.full(n_bins, np.inf)
     hits = np.empty(points_world.shape[0], np.int64)
     n_hits = 0
-    # every beam's stretch in the band: bin, from, to (m in the plane) and height rise per metre
+    # every beam's stretch in the band: bin, from, to (m in the plane) and its world z rise per metre
     beam_bin = np.empty(points_world.shape[0], np.int64)
     beam_from = np.empty(points_world.shape[0])
     beam_to = np.empty(points_world.shape[0])
@@ -497,7 +506,7 @@ def _ray_cast_sweep(
             beam_bin[n_beams] = b
             beam_from[n_beams] = free_from
             beam_to[n_beams] = free_to
-            beam_rise[n_beams] = rise / length
+            beam_rise[n_beams] = (z - sensor_z) / length
             n_beams += 1
         if band_low_m <= height <= band_high_m and not on_ground[k]:
             # The nearest obstacle in the band ends the free space of its azimuth.
@@ -529,16 +538,16 @@ def _ray_cast_sweep(
                 cell = i * ny + j
                 if mark[cell] == sweep:
                     continue
-                top = top_m[cell]
-                if top > -np.inf:
+                below_z = free_below_z[cell]
+                if below_z > -np.inf:
                     # the lowest beam of the bin over this sample must pass below what was seen here
                     distance = sample * resolution_m
                     lowest = np.inf
                     for k in range(first[b], first[b + 1]):
                         beam = order[k]
                         if beam_from[beam] <= distance <= beam_to[beam]:
-                            lowest = min(lowest, sensor_height_m + beam_rise[beam] * distance)
-                    if not lowest < top - top_margin_m:
+                            lowest = min(lowest, sensor_z + beam_rise[beam] * distance)
+                    if not lowest < below_z:
                         continue
                 mark[cell] = sweep
                 log_odds[cell] = max(log_odds[cell] + miss_log_odds, free_floor)
