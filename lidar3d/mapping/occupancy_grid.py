@@ -274,10 +274,17 @@ class OccupancyGrid:
 
     def cell_of(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Cell indices (i, j) of (N,2) world x, y and a (N,) mask of those inside the grid."""
-        ij = np.floor((xy - self.origin_xy_m) / self.resolution_m).astype(np.int64)
-        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.log_odds.shape[0])
-        inside &= ij[:, 1] < self.log_odds.shape[1]
-        return ij[:, 0], ij[:, 1], inside
+        return _cells_of(xy, self.origin_xy_m, self.resolution_m, self.log_odds.shape)
+
+
+def _cells_of(
+    xy: np.ndarray, origin_xy_m: np.ndarray, resolution_m: float, shape: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Cell indices (i, j) of (N,2) world x, y in a grid of ``shape`` cells from ``origin_xy_m``, and
+    a (N,) mask of those inside it."""
+    ij = np.floor((xy - origin_xy_m) / resolution_m).astype(np.int64)
+    inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < shape[0]) & (ij[:, 1] < shape[1])
+    return ij[:, 0], ij[:, 1], inside
 
 
 class OccupancyGridBuilder:
@@ -324,10 +331,8 @@ class OccupancyGridBuilder:
                 raise ValueError(f"on_ground must be ({len(points_world)},), got {on_ground.shape}")
             obstacle &= ~on_ground
         threshold_z = np.maximum(points_world[:, 2] - p.top_margin_m, ground_z + p.band_m[0] + p.top_margin_m)
-        ij = np.floor((points_world[obstacle, :2] - self.origin_xy_m) / p.resolution_m).astype(np.int64)
-        inside = (ij[:, 0] >= 0) & (ij[:, 1] >= 0) & (ij[:, 0] < self.shape[0]) & (ij[:, 1] < self.shape[1])
-        cells = ij[inside, 0] * self.shape[1] + ij[inside, 1]
-        np.maximum.at(self._free_below_z, cells, threshold_z[obstacle][inside])
+        i, j, inside = _cells_of(points_world[obstacle, :2], self.origin_xy_m, p.resolution_m, self.shape)
+        np.maximum.at(self._free_below_z, i[inside] * self.shape[1] + j[inside], threshold_z[obstacle][inside])
 
     def add(self, origin_world: np.ndarray, points_world: np.ndarray, on_ground: np.ndarray | None = None) -> None:
         """Ray cast one sweep: sensor position (3,) and its (N,3) points, world frame; ``on_ground``
