@@ -19,6 +19,7 @@ from lidar3d.mapping.se3 import exp_apply, invert, log_se3
 from lidar3d.records import Scan
 
 __all__ = [
+    "deskew_again",
     "deskew_features",
     "deskew_points",
     "deskew_scan",
@@ -100,6 +101,15 @@ def deskew_points(points: np.ndarray, time_offset_s: np.ndarray, twist: np.ndarr
     if len(points) == 0 or not np.any(twist):
         return np.asarray(points, dtype=np.float64)
     return exp_apply(twist, time_offset_s, points)
+
+
+def deskew_again(
+    points: np.ndarray, time_offset_s: np.ndarray, old_twist: np.ndarray, new_twist: np.ndarray
+) -> np.ndarray:
+    """Points (N,3) that were deskewed to the stamp with ``old_twist``, deskewed with ``new_twist``
+    instead (each (6,) body velocity, v m/s, w rad/s; ``time_offset_s`` (N,) when each was fired,
+    s from the stamp): back to where it was fired, then forward again."""
+    return deskew_points(deskew_points(points, time_offset_s, -np.asarray(old_twist)), time_offset_s, new_twist)
 
 
 def deskew_features(features: FeatureSet, twist: np.ndarray) -> FeatureSet:

@@ -96,6 +96,8 @@ class Submap:
     at most ``max_keyframes`` of them (the nearest first), always including the ``recent``
     latest keyframes. World-frame clouds of keyframes are cached (at most ``cache_size``,
     least recently used dropped); the cache is invalidated when poses are corrected.
+    :attr:`revision` counts the changes to keyframes already in it (clouds replaced, poses
+    corrected; not keyframes added): correspondences found in it hold while it is unchanged.
     """
 
     def __init__(
@@ -121,6 +123,7 @@ class Submap:
         self.plane_neighbours = plane_neighbours
         self.plane_max_distance_m = plane_max_distance_m
         self._added_since_build = 0
+        self.revision = 0
         self.keyframes: list[Keyframe] = []
         self._poses: list[np.ndarray] = []
         self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
@@ -166,6 +169,7 @@ class Submap:
         self.keyframes[k] = dataclasses.replace(old, corner_points=corner_points, surf_points=surf_points)
         self._cache.pop(k, None)
         self._target = None
+        self.revision += 1
 
     def set_poses(self, poses: np.ndarray) -> None:
         """Replace all keyframe poses (after a pose-graph correction) and drop the cache."""
@@ -174,6 +178,7 @@ class Submap:
         self._poses = [np.array(p) for p in poses]
         self._cache.clear()
         self._target = None
+        self.revision += 1
 
     def _world_clouds(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         cached = self._cache.get(k)

@@ -149,6 +149,8 @@ class SolveResult:
         probe_return_share: how much of the rows' information along their weakest translation the
             cost really has, from :func:`probe_return_share` (1 when not probed); the
             ``information`` is already scaled by it along that direction.
+        matches: the correspondences of the last iteration (rows into the source points, target
+            frame), None when the solve did not run.
     """
 
     T_target_source: np.ndarray
@@ -160,6 +162,7 @@ class SolveResult:
     information: np.ndarray = field(default_factory=lambda: np.zeros((6, 6)))
     residual_sigma_m: float = float("nan")
     probe_return_share: float = 1.0
+    matches: MatchRows | None = None
 
 
 def plane_rows_from_normals(source_index: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> MatchRows:
@@ -658,4 +661,5 @@ def solve_pose(
         min_eig,
         information,
         sigma_m,
+        matches=matches,
     )

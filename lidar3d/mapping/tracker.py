@@ -40,13 +40,13 @@ import numpy as np
 
 from lidar3d.config import Config, MappingConfig, MotionConfig
 from lidar3d.features.frontend import PreparedScan
-from lidar3d.mapping.deskew import twist_between
+from lidar3d.mapping.deskew import deskew_again, twist_between
 from lidar3d.mapping.keyframes import Submap
 from lidar3d.mapping.motion_model import MotionModel, nominal_step_information
 from lidar3d.mapping.moving_points import MovingPoints
 from lidar3d.mapping.odometry import OdometryStep, ScanToScanOdometry
-from lidar3d.mapping.registration import PosePrior, SolveResult, observed_share
-from lidar3d.mapping.scan_to_map import register_to_submap, sweep_tilt_on_submap
+from lidar3d.mapping.registration import MatchRows, PosePrior, SolveResult, observed_share
+from lidar3d.mapping.scan_to_map import register_again, register_to_submap, sweep_tilt_on_submap
 from lidar3d.mapping.se3 import exp_se3
 from lidar3d.mapping.sweep import SweepFeatures
 from lidar3d.mapping.sweep_tilt import SweepTilt, TiltPrior
@@ -99,7 +99,8 @@ class TrackResult:
             from its guess, for the health signal); None only in results built by hand.
         lost_keyframes: keyframes placed while lost in the submap this scan was registered
             against (:meth:`~lidar3d.mapping.keyframes.Submap.lost_keyframes_in_target`, taken
-            before the previous sweep's re-registration selects a submap of its own).
+            right after its registration, before the previous sweep's re-registration, which may
+            select a submap of its own).
         settled: the previous sweep, final now (None for the first scan).
         timings_ms: wall milliseconds per stage: deskew, odometry, mapping, redeskew (the last
             only when a previous sweep was settled).
@@ -131,6 +132,17 @@ class _Refinement:
     registration: SolveResult | None
     prior: PosePrior | None = None
     heading_observed: bool = True
+    source: _Source | None = None  # what the registration matched
+
+
+@dataclass(frozen=True, slots=True)
+class _Source:
+    """The points a registration matched: (N,3) in the lidar frame at the stamp, deskewed with the
+    twist the sweep was registered with, and (N,) when each was fired (s from the stamp; for a
+    voxel's centroid, the mean of its points')."""
+
+    points_lidar: np.ndarray
+    time_s: np.ndarray
 
 
 @dataclass(frozen=True, slots=True)
@@ -157,6 +169,9 @@ class _Unsettled:
     reference_offset_s: float
     reference_twist: np.ndarray  # moves the pose from the stamp to the reference instant
     reference_information: np.ndarray  # (6, 6) what its rows were judged against (the vehicle prior's)
+    source: _Source | None  # the points its registration matched (None: not registered)
+    matches: MatchRows | None  # their correspondences in the submap, world frame
+    submap_revision: int  # Submap.revision when they were found
 
 
 class Tracker:
@@ -243,6 +258,9 @@ class Tracker:
             offset_s,
             reference_twist,
             self._reference(refinement.prior),
+            refinement.source,
+            refinement.registration.matches if refinement.registration is not None else None,
+            self._submap.revision,
         )
         self._latest = _Latest(scan.stamp_ns, T_world_lidar, T_world_odom, reference_ns, T_world_reference)
         return TrackResult(
@@ -313,7 +331,7 @@ class Tracker:
             prior = _moved_prior(at_reference, -offset_s, twist)
         heading = _odometry_heading(T_world_lidar, step, self._heading_shortfall) if self._fuse_heading else None
         fused = _fused(prior, heading, T_world_lidar, self._vehicle)
-        refined, estimated = _register(
+        refined, estimated, source = _register(
             self._submap,
             self._mapping,
             deskewed,
@@ -329,32 +347,51 @@ class Tracker:
             return _Refinement(T_world_lidar, step.used_motion_model, None)
         measured = refined.information if heading is None else refined.information + heading.information
         heading_observed = prior is None or observed_share(measured, prior.information)[5] >= 0.5
-        return _Refinement(refined.T_target_source, False, refined, prior, heading_observed)
+        return _Refinement(refined.T_target_source, False, refined, prior, heading_observed, source)
 
     def _settle(self, unsettled: _Unsettled, twist: np.ndarray) -> SettledSweep:
-        """The unsettled sweep, re-registered with its sweep deskewed by ``twist`` (its forward
+        """The unsettled sweep, registered again with its points deskewed by ``twist`` (its forward
         motion, between the reference instants) when that differs enough from the prediction it
-        was registered with, from its pose at the reference instant. Scans that were not fully
-        constrained keep their pose: their free directions came from the motion model, which the
-        forward difference would only echo."""
+        was registered with, from its pose at the reference instant. The points move by a few
+        centimetres, so the registration keeps the correspondences it ended with
+        (:func:`register_again`: no new search of the submap), unless the submap changed under
+        them since (:attr:`Submap.revision`: the first keyframe's clouds replaced, a loop closure
+        moving its keyframes, each by its own correction): then the sweep, deskewed again whole,
+        is registered anew. Scans that were not fully constrained keep their pose: their free
+        directions came from the motion model, which the forward difference would only echo."""
         mp = self._mapping
         kept = SettledSweep(unsettled.scan, unsettled.sweep, unsettled.T_world_lidar, twist, revised=False)
         change = twist - unsettled.deskew_twist
         moved_m = max(np.linalg.norm(change[:3]), mp.redeskew_lever_m * np.linalg.norm(change[3:]))
-        if not unsettled.registered or moved_m * self._sweep_period_s < mp.redeskew_threshold_m:
+        source, matches = unsettled.source, unsettled.matches
+        if (
+            not unsettled.registered
+            or source is None
+            or matches is None
+            or moved_m * self._sweep_period_s < mp.redeskew_threshold_m
+        ):
             return kept
         guess = _kept_at_reference(unsettled, twist)
-        refined, _ = _register(
-            self._submap,
-            self._mapping,
-            unsettled.sweep.deskewed(twist),
-            guess,
-            mp.redeskew_iterations,
-            None,
-            unsettled.reference_information,
-            False,
-            self._tilt_prior.sigma_rad,
-        )
+        if unsettled.submap_revision == self._submap.revision:
+            refined = register_again(
+                matches,
+                deskew_again(source.points_lidar, source.time_s, unsettled.deskew_twist, twist),
+                guess,
+                mp,
+                reference_information=unsettled.reference_information,
+            )
+        else:
+            refined, _, _ = _register(
+                self._submap,
+                mp,
+                unsettled.sweep.deskewed(twist),
+                guess,
+                mp.redeskew_iterations,
+                None,
+                unsettled.reference_information,
+                False,
+                self._tilt_prior.sigma_rad,
+            )
         if refined.iterations == 0 or refined.degenerate_axes:
             return kept
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
@@ -370,7 +407,7 @@ def _register(
     reference_information: np.ndarray,
     widen_search: bool,
     tilt_sigma_rad: float,
-) -> tuple[SolveResult, SweepTilt | None]:
+) -> tuple[SolveResult, SweepTilt | None, _Source]:
     """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar``, fused with ``prior``
     when given; a direction the rows know less well than the (6, 6) ``reference_information`` is
     degenerate (see :func:`register_to_submap`). Then, unless ``mapping.tilt_knot_spacing_s`` is
@@ -378,7 +415,7 @@ def _register(
     fitted with the pose held, and the sweep moved by them is registered again from that pose
     (at most ``mapping.redeskew_iterations``) when the tilt moves a point by as much as a new
     deskewing must to register again (``redeskew_threshold_m`` at ``redeskew_lever_m``). Returns
-    the registration and the tilt estimated (None: none). The tilt moves the registration's
+    the registration, the tilt estimated (None: none) and the points it matched. The tilt moves the registration's
     points only: the keyframes and the map keep the sweep as deskewed (fed back into the map,
     the tilts followed the map's own slope errors: ``hilly`` seed 0 0.011 -> 0.030 m)."""
     corner, corner_time_s, surf, surf_time_s = deskewed.timed_registration_clouds(mp)
@@ -388,21 +425,21 @@ def _register(
         register_to_submap, target, config=mp, reference_information=reference_information, prior=prior
     )
     result = register(corner, surf, T_world_lidar, max_iterations=iterations, widen_search=widen_search)
+    source = _Source(np.concatenate([corner, surf]), np.concatenate([corner_time_s, surf_time_s]))
     if mp.tilt_knot_spacing_s <= 0 or result.iterations == 0:
-        return result, None
+        return result, None, source
     tilt = sweep_tilt_on_submap(
         target, (corner, corner_time_s), (surf, surf_time_s), result.T_target_source, mp, tilt_sigma_rad
     )
     if tilt is None or tilt.max_rad * mp.redeskew_lever_m < mp.redeskew_threshold_m:
-        return result, tilt  # it moves no point by as much as a new deskewing must to register again
+        return result, tilt, source  # it moves no point by as much as a new deskewing must to register again
+    tilted_corner, tilted_surf = tilt.apply(corner, corner_time_s), tilt.apply(surf, surf_time_s)
     again = register(
-        tilt.apply(corner, corner_time_s),
-        tilt.apply(surf, surf_time_s),
-        result.T_target_source,
-        max_iterations=mp.redeskew_iterations,
-        widen_search=False,
+        tilted_corner, tilted_surf, result.T_target_source, max_iterations=mp.redeskew_iterations, widen_search=False
     )
-    return (again if again.iterations else result), tilt
+    if not again.iterations:
+        return result, tilt, source
+    return again, tilt, _Source(np.concatenate([tilted_corner, tilted_surf]), source.time_s)
 
 
 def _scan_to_scan_odometry(config: Config) -> ScanToScanOdometry:
