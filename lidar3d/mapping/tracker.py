@@ -352,49 +352,42 @@ class Tracker:
     def _settle(self, unsettled: _Unsettled, twist: np.ndarray) -> SettledSweep:
         """The unsettled sweep, registered again with its points deskewed by ``twist`` (its forward
         motion, between the reference instants) when that differs enough from the prediction it
-        was registered with, from its pose at the reference instant. The points move by a few
-        centimetres, so the registration keeps the correspondences it ended with
-        (:func:`register_again`: no new search of the submap), unless the submap changed under
-        them since (:attr:`Submap.revision`: the first keyframe's clouds replaced, a loop closure
-        moving its keyframes, each by its own correction): then the sweep, deskewed again whole,
-        is registered anew. Scans that were not fully constrained keep their pose: their free
-        directions came from the motion model, which the forward difference would only echo."""
+        was registered with, from its pose at the reference instant (:func:`_register_settled`).
+        Scans that were not fully constrained keep their pose: their free directions came from
+        the motion model, which the forward difference would only echo."""
         mp = self._mapping
         kept = SettledSweep(unsettled.scan, unsettled.sweep, unsettled.T_world_lidar, twist, revised=False)
         change = twist - unsettled.deskew_twist
         moved_m = max(np.linalg.norm(change[:3]), mp.redeskew_lever_m * np.linalg.norm(change[3:]))
-        source, matches = unsettled.source, unsettled.matches
-        if (
-            not unsettled.registered
-            or source is None
-            or matches is None
-            or moved_m * self._sweep_period_s < mp.redeskew_threshold_m
-        ):
+        if not unsettled.registered or moved_m * self._sweep_period_s < mp.redeskew_threshold_m:
             return kept
-        guess = _kept_at_reference(unsettled, twist)
-        if unsettled.submap_revision == self._submap.revision:
-            refined = register_again(
-                matches,
-                deskew_again(source.points_lidar, source.time_s, unsettled.deskew_twist, twist),
-                guess,
-                mp,
-                reference_information=unsettled.reference_information,
-            )
-        else:
-            refined, _, _ = _register(
-                self._submap,
-                mp,
-                unsettled.sweep.deskewed(twist),
-                guess,
-                mp.redeskew_iterations,
-                None,
-                unsettled.reference_information,
-                False,
-                self._tilt_prior.sigma_rad,
-            )
-        if refined.iterations == 0 or refined.degenerate_axes:
+        refined = _register_settled(self._submap, mp, unsettled, twist, self._tilt_prior.sigma_rad)
+        if refined is None or refined.iterations == 0 or refined.degenerate_axes:
             return kept
         return SettledSweep(unsettled.scan, unsettled.sweep, refined.T_target_source, twist, revised=True)
+
+
+def _register_settled(
+    submap: Submap, mp: MappingConfig, unsettled: _Unsettled, twist: np.ndarray, tilt_sigma_rad: float
+) -> SolveResult | None:
+    """The registration of a sweep deskewed again with ``twist``, from its pose kept at the
+    reference instant (None: its registration left nothing to start from). Its points move by a
+    few centimetres, so it keeps the correspondences its registration ended with
+    (:func:`register_again`: no new search of the submap), unless the submap changed under them
+    since (:attr:`Submap.revision`: the first keyframe's clouds replaced, a loop closure moving
+    its keyframes, each by its own correction) or the sweep's tilt is fitted
+    (``mapping.tilt_knot_spacing_s``: the tilt follows the deskewing): then the sweep, deskewed
+    again whole, is registered anew (:func:`_register`)."""
+    source, matches = unsettled.source, unsettled.matches
+    if source is None or matches is None:
+        return None
+    guess = _kept_at_reference(unsettled, twist)
+    if unsettled.submap_revision == submap.revision and mp.tilt_knot_spacing_s <= 0:
+        moved = deskew_again(source.points_lidar, source.time_s, unsettled.deskew_twist, twist)
+        return register_again(matches, moved, guess, mp, reference_information=unsettled.reference_information)
+    deskewed = unsettled.sweep.deskewed(twist)
+    reference = unsettled.reference_information
+    return _register(submap, mp, deskewed, guess, mp.redeskew_iterations, None, reference, False, tilt_sigma_rad)[0]
 
 
 def _register(
@@ -433,13 +426,14 @@ def _register(
     )
     if tilt is None or tilt.max_rad * mp.redeskew_lever_m < mp.redeskew_threshold_m:
         return result, tilt, source  # it moves no point by as much as a new deskewing must to register again
-    tilted_corner, tilted_surf = tilt.apply(corner, corner_time_s), tilt.apply(surf, surf_time_s)
     again = register(
-        tilted_corner, tilted_surf, result.T_target_source, max_iterations=mp.redeskew_iterations, widen_search=False
+        tilt.apply(corner, corner_time_s),
+        tilt.apply(surf, surf_time_s),
+        result.T_target_source,
+        max_iterations=mp.redeskew_iterations,
+        widen_search=False,
     )
-    if not again.iterations:
-        return result, tilt, source
-    return again, tilt, _Source(np.concatenate([tilted_corner, tilted_surf]), source.time_s)
+    return (again if again.iterations else result), tilt, source  # a tilted sweep settles anew: source unused
 
 
 def _scan_to_scan_odometry(config: Config) -> ScanToScanOdometry:
