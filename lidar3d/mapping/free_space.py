@@ -42,7 +42,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.config import DynamicConfig
-from lidar3d.mapping.voxel import voxel_key_step, voxel_keys
+from lidar3d.mapping.voxel import group_sums, voxel_key_step, voxel_keys
 
 __all__ = [
     "DynamicFilter",
@@ -457,9 +457,7 @@ class DynamicFilter:
             normals = point_normals(sweep.points_lidar, sweep.ring, len(self._elevation_rad), self._n_bins)
             normals = normals @ sweep.T_world_lidar[:3, :3].T
             counts = np.bincount(inverse, minlength=keys.size)
-            mean_normals = np.column_stack(
-                [np.bincount(inverse, weights=normals[:, d], minlength=keys.size) / counts for d in range(3)]
-            ).astype(np.float32)
+            mean_normals = (group_sums(inverse, normals, keys.size) / counts[:, None]).astype(np.float32)
         origin = sweep.T_world_lidar[:3, 3].copy()
         return _WaitingSweep(index, sweep.points_world, sweep.intensity, origin, keys, inverse, mean_normals)
 
@@ -468,9 +466,11 @@ class DynamicFilter:
         index, keys, inverse, points = waiting.index, waiting.keys, waiting.inverse, waiting.points_world
         config = self.config
         sums = np.column_stack(
-            [np.bincount(inverse, weights=points[:, d], minlength=keys.size) for d in range(3)]
-            + [np.bincount(inverse, weights=waiting.intensity, minlength=keys.size)]
-            + [np.bincount(inverse, minlength=keys.size)]
+            [
+                group_sums(inverse, points, keys.size),
+                np.bincount(inverse, weights=waiting.intensity, minlength=keys.size),
+                np.bincount(inverse, minlength=keys.size),
+            ]
         )
         dynamic, valid_until = self._recalled(keys, index)
         test = np.flatnonzero(valid_until < 0)

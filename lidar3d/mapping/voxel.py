@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["VoxelMap", "group_by_voxel", "voxel_downsample", "voxel_key_step", "voxel_keys"]
+__all__ = ["VoxelMap", "group_by_voxel", "group_sums", "voxel_downsample", "voxel_key_step", "voxel_keys"]
 
 _OFFSET = 1 << 20  # voxel indices are shifted into [0, 2^21) per axis before packing
 
@@ -35,14 +35,14 @@ def voxel_downsample(points: np.ndarray, voxel_m: float, values: np.ndarray | No
         return (points, values) if values is not None else points
     keys = voxel_keys(points, voxel_m)
     _, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    centroids = _group_sums(inverse, points, counts.size) / counts[:, None]
+    centroids = group_sums(inverse, points, counts.size) / counts[:, None]
     if values is None:
         return centroids
     mean_values = np.bincount(inverse, weights=values, minlength=counts.size) / counts
     return centroids, mean_values
 
 
-def _group_sums(inverse: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
+def group_sums(inverse: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
     """Column-wise sums of (N,D) ``values`` per group (bincount is far faster than add.at)."""
     return np.column_stack(
         [np.bincount(inverse, weights=values[:, d], minlength=n_groups) for d in range(values.shape[1])]
@@ -54,7 +54,7 @@ def group_by_voxel(points: np.ndarray, intensity: np.ndarray, voxel_m: float) ->
     (:func:`voxel_keys`) and (V,5) per voxel the sums of x, y, z and intensity and the count."""
     keys = voxel_keys(points, voxel_m)
     uniq, inverse, counts = np.unique(keys, return_inverse=True, return_counts=True)
-    sums = _group_sums(inverse, points, uniq.size)
+    sums = group_sums(inverse, points, uniq.size)
     isum = np.bincount(inverse, weights=intensity, minlength=uniq.size)
     return uniq, np.column_stack([sums, isum, counts])
 
@@ -111,7 +111,7 @@ class VoxelMap:
         keys = voxel_keys(points_world, self.voxel_m)
         uniq, inverse = np.unique(keys, return_inverse=True)
         weighted = np.column_stack([points_world * weight[:, None], intensity * weight, weight])
-        self._pending.append((uniq, _group_sums(inverse, weighted, uniq.size)))
+        self._pending.append((uniq, group_sums(inverse, weighted, uniq.size)))
         self._pending_points += uniq.size
         if self._pending_points >= self._merge_every:
             self._merge()
@@ -134,7 +134,7 @@ class VoxelMap:
         touched = np.unique(at[self._keys[at] == new_keys]) if self._keys.size else np.zeros(0, np.int64)
         old = np.column_stack([self._sum_xyz[touched], self._sum_intensity[touched], self._count[touched]])
         uniq, inverse = np.unique(np.concatenate([self._keys[touched], new_keys]), return_inverse=True)
-        merged = _group_sums(inverse, np.concatenate([old, new_data]), uniq.size)
+        merged = group_sums(inverse, np.concatenate([old, new_data]), uniq.size)
         rows = np.searchsorted(self._keys, uniq)
         known = np.isin(uniq, self._keys[touched], assume_unique=True)
         self._sum_xyz[rows[known]] = merged[known, :3]
