@@ -434,7 +434,10 @@ class HealthConfig:
     model's accelerations between scans, the registration's information at each; translation plus
     ``lever_m`` times rotation) is above ``degraded_sigma_m``; after ``lost_after_m`` of travel with
     the pose not observed the scans are ``lost``, until ``clear_after_m`` of fully observed travel
-    in a row. Besides, a scan is ``degraded`` while the refined trajectory and the
+    in a row. A scan whose refined step and odometry step are ``jump_m`` or more apart (the
+    tolerance itself: one of the two is that far off) starts ``jump_window_m`` of ``degraded``
+    travel, the stretch over which that step's error is the tolerance's. Besides, a scan is
+    ``degraded`` while the refined trajectory and the
     scan-to-scan odometry parted over the last ``consistency_window_m``, in heading or in distance
     along the steps, by more than ``max_consistency_z`` standard deviations of the odometry's own
     (its rows', and the floors ``heading_sigma_floor_deg`` and ``along_sigma_floor_m``); a difference
@@ -455,6 +458,10 @@ class HealthConfig:
     degraded_sigma_m: float = _key(
         0.1, _positive(100.0, "m"), "pose std (vehicle model between scans, the rows at each) above which degraded"
     )
+    jump_m: float = _key(
+        0.3, _positive(100.0, "m"), "refined and odometry steps this far apart: the travel from there is degraded ..."
+    )
+    jump_window_m: float = _key(10.0, _closed(0.0, 1e5, "m"), "... for this far")
     clear_after_m: float = _key(
         2.0, _positive(1e5, "m"), "fully observed travel in a row that clears the dead-reckoned and blind travel"
     )

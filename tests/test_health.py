@@ -115,7 +115,7 @@ def test_a_single_bad_scan_or_a_short_blind_patch_does_not_flag():
         measures(sigma_m=1.0),
         measures(registered=False),
         measures(motion_model_only=True),
-        measures(odometry_disagreement_m=10 * CONFIG.max_disagreement_m),
+        measures(odometry_disagreement_m=0.99 * CONFIG.jump_m),  # inconsistent, but within the tolerance
     ]
     for bad in bad_kinds:
         health = assess_all([measures()] * 10 + [bad] + [measures()] * 10)
@@ -123,6 +123,21 @@ def test_a_single_bad_scan_or_a_short_blind_patch_does_not_flag():
         assert not health[10].observed
     # Three blind scans at 0.5 m: 1.5 m.
     assert set(flags(assess_all([measures()] * 3 + [measures(sigma_m=1.0)] * 3 + [measures()] * 3))) == {"o"}
+
+
+def test_a_step_the_odometry_contradicts_by_the_tolerance_degrades_the_travel_after_it():
+    # blind_turn seed 2's turn exit: the refined step 0.64 m long, 0.96 m from the odometry's,
+    # every other measure calm; the next 10 m of the trajectory carry that error.
+    assert CONFIG.max_disagreement_m < CONFIG.jump_m
+    jump = measures(odometry_disagreement_m=CONFIG.jump_m)
+    health = assess_all([measures()] * 10 + [jump] + [measures()] * 30)
+    window = int(CONFIG.jump_window_m / 0.5)  # scans of 0.5 m after the jump still within the window
+    assert flags(health) == "o" * 10 + "d" * (1 + window) + "o" * (30 - window)
+    # A standstill after it adds no travel: still degraded.
+    stopped = assess_all([jump] + [measures(0.0)] * 50)
+    assert set(flags(stopped)) == {"d"}
+    off = dataclasses.replace(CONFIG, jump_window_m=0.0)
+    assert flags(assess_all([measures()] * 3 + [jump] + [measures()] * 3, off)) == "ooo" + "d" + "ooo"
 
 
 def test_observed_travel_clears_the_state_only_after_the_documented_distance():

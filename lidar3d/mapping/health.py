@@ -32,6 +32,12 @@ their pose; each such scan adds its step length, ``clear_after_m`` of fully obse
 row clears both. The flag is ``lost`` from ``blind_m >= lost_after_m`` (not observed for long), so
 a single noisy scan never flags and a standstill (no travel) never accumulates.
 
+**A step the odometry contradicts by the tolerance.** One scan whose refined step and odometry
+step are ``jump_m`` apart (0.3 m, the tolerance of issue 15 itself: one of the two is that far
+off) makes its own and the next ``jump_window_m`` of travel ``degraded``, the stretch whose local
+drift holds that step (``blind_turn`` seed 2's turn exit: the refined step 0.64 m long, every
+other measure calm).
+
 **Consistency with the odometry over a window.** A scan-to-submap registration that is well
 observed on every direction can still be biased: the submap is built from the trajectory's own
 poses, and a small one-signed pull per scan bends and shortens map and trajectory together
@@ -67,6 +73,7 @@ keyframes count, not ``degraded`` ones, so the flag cannot feed itself.
 from __future__ import annotations
 
 import enum
+import math
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -393,6 +400,7 @@ class HealthMonitor:
         self._blind_m = 0.0  # travel with the pose not observed, in the same time
         self._observed_m = 0.0  # fully observed travel in a row
         self._consistency = _ConsistencyWindow(config)
+        self._since_jump_m = math.inf  # travel since the last step the odometry contradicted by jump_m
 
     def assess(self, stamp_ns: int, measures: ScanMeasures) -> ScanHealth:
         """The health of the next scan (stamp ``stamp_ns``) from its measures."""
@@ -409,6 +417,11 @@ class HealthMonitor:
                 self._blind_m += measures.step_m
         heading_z, along_z = self._consistency.add(measures)
         inconsistent = max(heading_z, along_z) > config.max_consistency_z
+        if measures.odometry_disagreement_m >= config.jump_m:
+            self._since_jump_m = 0.0
+        else:
+            self._since_jump_m += measures.step_m
+        inconsistent |= self._since_jump_m <= config.jump_window_m
         if self._blind_m >= config.lost_after_m:
             flag = HealthFlag.LOST
         elif measures.pose_sigma_m > config.degraded_sigma_m or inconsistent or measures.lost_keyframes:
