@@ -407,6 +407,9 @@ class MappingConfig:
     )
     redeskew_lever_m: float = _key(10.0, _closed(0.0, 10000.0, "m"), "lever arm of that test's rotation part")
     redeskew_iterations: int = _key(4, _ITERATIONS, "iteration limit of the second registration")
+    solve_sweep_yaw_rate: bool = _key(
+        False, None, "solve the sweep's yaw rate beside its pose (prior: motion.yaw_accel_rad_s2 over one sweep)"
+    )
     tilt_knot_spacing_s: float = _key(
         0.0, _closed(0.0, 1.0, "s"), "roll/pitch knots within a sweep (vibration) this far apart at most (0: off)"
     )

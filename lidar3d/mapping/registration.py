@@ -48,6 +48,7 @@ __all__ = [
     "PlaneMap",
     "PosePrior",
     "SolveResult",
+    "SweepTurn",
     "line_rows_from_directions",
     "observed_share",
     "plane_rows_from_normals",
@@ -163,6 +164,52 @@ class SolveResult:
     residual_sigma_m: float = float("nan")
     probe_return_share: float = 1.0
     matches: MatchRows | None = None
+    yaw_rate_correction_rad_s: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class SweepTurn:
+    """The sweep's yaw rate as a parameter of its registration, beside the pose.
+
+    A sweep is deskewed with a predicted twist held over its 0.1 s; where the vehicle's yaw rate
+    changes (a turn's entry or exit, 20-30 deg/s gained or lost within a few sweeps) the points
+    fired late in the sweep are turned by up to ``T x`` the rate's error about the sensor (1.5 deg,
+    50 cm at 20 m), and a pose-only registration takes the mean of that distortion into the pose.
+    With a ``SweepTurn`` the registration solves for a correction ``w`` of the yaw rate too (the
+    continuous-time sweep of CT-ICP, Dellenbach et al., ICRA 2022, reduced to the one rate a
+    vehicle changes quickly): a point fired ``t`` after the stamp is turned by ``w t`` about the
+    lidar's z axis through where the sensor was then (``t v``), to first order in the sweep's
+    motion. The rows decide ``w`` as far as they observe it (vertical structure over the sweep's
+    azimuths); the zero-mean prior ``information`` (the vehicle model's yaw acceleration over one
+    sweep) decides it where they do not.
+
+    Attributes:
+        time_s: (N,) firing time of each source point, s from the stamp.
+        velocity_mps: (3,) linear velocity the sweep was deskewed with (lidar frame).
+        information: prior information of ``w``, (rad/s)^-2.
+    """
+
+    time_s: np.ndarray
+    velocity_mps: np.ndarray
+    information: float
+
+    def turned(self, points: np.ndarray, rate_rad_s: float) -> np.ndarray:
+        """(N, 3) source points with the sweep's yaw rate corrected by ``rate_rad_s``."""
+        if rate_rad_s == 0.0:
+            return points
+        t = self.time_s
+        centre = t[:, None] * self.velocity_mps
+        d = points - centre
+        c, s = np.cos(rate_rad_s * t), np.sin(rate_rad_s * t)
+        return centre + np.column_stack([c * d[:, 0] - s * d[:, 1], s * d[:, 0] + c * d[:, 1], d[:, 2]])
+
+    def column(self, normal: np.ndarray, points: np.ndarray, index: np.ndarray, R: np.ndarray) -> np.ndarray:
+        """(K,) derivative of the rows ``normal . (R p + t)`` (K unit normals, target frame) over
+        the rate correction, for the (K, 3) turned source points ``points`` of source ``index``."""
+        t = np.take(self.time_s, index)
+        d = points - t[:, None] * self.velocity_mps
+        turn = np.column_stack([-d[:, 1], d[:, 0], np.zeros(len(d))])  # e_z x d
+        return t * np.einsum("ij,ij->i", normal, turn @ R.T)
 
 
 def plane_rows_from_normals(source_index: np.ndarray, normal: np.ndarray, offset: np.ndarray) -> MatchRows:
@@ -510,6 +557,7 @@ def solve_pose(
     data_scaling: np.ndarray | None = None,
     anneal: bool = True,
     reference_information: np.ndarray | None = None,
+    turn: SweepTurn | None = None,
 ) -> SolveResult:
     """Estimate ``T_target_source`` minimising the matched rows' residuals.
 
@@ -547,6 +595,8 @@ def solve_pose(
             (:func:`unobserved_directions`; at the first iteration for the projection, at the
             last for ``degenerate_axes``); None selects the eigenvalue test with
             ``degeneracy_threshold``.
+        turn: the sweep's yaw rate solved for beside the pose (:class:`SweepTurn`; only with a
+            ``prior``); the rows' ``information`` is then the pose's with the rate marginalised.
 
     Returns a :class:`SolveResult`; when there are fewer than ``min_rows`` rows on the first
     iteration, the initial guess is returned with ``iterations == 0``.
@@ -565,6 +615,9 @@ def solve_pose(
     converged = False
     iteration = 0
     n_rows = 0
+    k = len(free)
+    turning = turn is not None and prior is not None
+    rate_rad_s = 0.0
     while iteration < max_iterations:
         R, dR = _rotation_and_derivatives(x)  # (3,3), (3,3,3)
         T = _pose(x, R)
@@ -577,15 +630,16 @@ def solve_pose(
             if anneal
             else robust_scale_m
         )
+        points = turn.turned(source, rate_rad_s) if turning and turn is not None else source
         if iteration % rematch_every == 0:
-            q_all = source @ T[:3, :3].T + T[:3, 3]
+            q_all = points @ T[:3, :3].T + T[:3, 3]
             matches = find_matches(q_all, 3.0 * scale_m if robust_scale_m > 0 else None)
         if len(matches) < min_rows:
             if iteration == 0:
                 return SolveResult(T_init.copy(), 0, False, len(matches), 0, min_eig)
             break
         # np.take gathers rows 5x faster than fancy indexing
-        p = np.take(source, matches.source_index, axis=0)
+        p = np.take(points, matches.source_index, axis=0)
         q = p @ T[:3, :3].T + T[:3, 3] if q_all is None else np.take(q_all, matches.source_index, axis=0)
         residual = np.einsum("ij,ij->i", matches.normal, q) + matches.offset
         if robust_scale_m > 0:
@@ -608,10 +662,16 @@ def solve_pose(
         Jf = J[:, free] * w[:, None]
         if data_scaling is not None:
             Jf = Jf @ data_scaling[np.ix_(free, free)]
+        if turning and turn is not None:
+            rate_column = turn.column(n, np.take(p, use, axis=0), np.take(matches.source_index, use), R)
+            if level_normal_z > 0:
+                rate_column[np.abs(n[:, 2]) >= level_normal_z] = 0.0  # level rows hold no yaw
+            Jf = np.column_stack([Jf, rate_column * w])
         rf = residual[use] * w
-        H = Jf.T @ Jf
-        g = Jf.T @ rf
+        H_all = Jf.T @ Jf
+        g_all = Jf.T @ rf
         sigma_m = max(float(np.sqrt(rf @ rf / (w @ w))), min_residual_sigma_m)
+        H, g = H_all[:k, :k], g_all[:k]
         information[np.ix_(free, free)] = H / sigma_m**2
         if iteration == 0:
             vals, vecs = np.linalg.eigh(H)
@@ -625,16 +685,42 @@ def solve_pose(
                 degenerate = int((~keep).sum())
                 if degenerate and prior is None:
                     projector = vecs @ np.diag(keep.astype(float)) @ vecs.T
+            if turning and turn is not None:
+                # The rate is solved for only in a scan that observes every direction of its pose
+                # and knows the rate better than the vehicle model does (its information with the
+                # pose unknown above the prior's: the test of unobserved_directions); elsewhere it
+                # keeps the prediction (on open land the rows' claim on it is not to be trusted).
+                coupling = H_all[:k, k]
+                rate_information = H_all[k, k] - coupling @ np.linalg.solve(H + 1e-9 * np.eye(k), coupling)
+                turning = degenerate == 0 and rate_information / sigma_m**2 >= turn.information
+        if turning and turn is not None:
+            # The pose's information with the rate unknown (its prior included): the Schur complement.
+            coupling = H_all[:k, k]
+            H = H - np.outer(coupling, coupling) / (H_all[k, k] + turn.information * sigma_m**2)
+            information[np.ix_(free, free)] = H / sigma_m**2
+        rate_step_deg = 0.0
         if prior_information is not None and x_prior is not None:
             # Maximum a posteriori step: rows and prior, each weighted by its information.
-            A = H / sigma_m**2 + prior_information
-            b = g / sigma_m**2 + prior_information @ _wrapped_difference(x, x_prior)[free]
+            if turning and turn is not None and len(g_all) > k:
+                A = H_all / sigma_m**2
+                A[:k, :k] += prior_information
+                A[k, k] += turn.information
+                b = g_all / sigma_m**2
+                b[:k] += prior_information @ _wrapped_difference(x, x_prior)[free]
+                b[k] += turn.information * rate_rad_s
+            else:
+                A = H / sigma_m**2 + prior_information
+                b = g / sigma_m**2 + prior_information @ _wrapped_difference(x, x_prior)[free]
         else:
             A, b = H, g
         try:
-            dx = -np.linalg.solve(A + 1e-9 * np.eye(len(free)), b)
+            step = -np.linalg.solve(A + 1e-9 * np.eye(len(b)), b)
         except np.linalg.LinAlgError:
             break
+        dx = step[:k]
+        if len(step) > k and turn is not None:
+            rate_rad_s += float(step[k])
+            rate_step_deg = np.rad2deg(abs(float(step[k])) * float(np.max(np.abs(turn.time_s), initial=0.0)))
         if projector is not None:
             dx = projector @ dx
         x[free] += dx
@@ -644,6 +730,7 @@ def solve_pose(
         if (
             not annealing
             and np.rad2deg(np.linalg.norm(full[3:])) < converge_rotation_deg
+            and rate_step_deg < converge_rotation_deg
             and np.linalg.norm(full[:3]) < converge_translation_m
         ):
             converged = True
@@ -662,4 +749,5 @@ def solve_pose(
         information,
         sigma_m,
         matches=matches,
+        yaw_rate_correction_rad_s=rate_rad_s,
     )

@@ -19,7 +19,14 @@ import numpy as np
 
 from lidar3d.config import MappingConfig
 from lidar3d.mapping.keyframes import SubmapTarget
-from lidar3d.mapping.registration import MatchRows, PosePrior, SolveResult, probe_return_share, solve_pose
+from lidar3d.mapping.registration import (
+    MatchRows,
+    PosePrior,
+    SolveResult,
+    SweepTurn,
+    probe_return_share,
+    solve_pose,
+)
 from lidar3d.mapping.sweep_tilt import SweepTilt, estimate_sweep_tilt
 
 __all__ = ["register_again", "register_to_submap", "sweep_tilt_on_submap"]
@@ -58,6 +65,7 @@ def register_to_submap(
     *,
     reference_information: np.ndarray,
     widen_search: bool = True,
+    turn: SweepTurn | None = None,
 ) -> SolveResult:
     """Refine ``T_world_lidar`` of a scan whose features are given in its lidar frame.
 
@@ -69,7 +77,10 @@ def register_to_submap(
     without ``widen_search`` they start at their final width (a prior that only keeps the guess
     where the rows are silent). ``reference_information``: (6, 6) the vehicle model's information
     over the scan interval; a direction the rows know less well than that is degenerate
-    (``degenerate_axes``; without a prior it keeps the guess).
+    (``degenerate_axes``; without a prior it keeps the guess). ``turn``: the sweep's yaw rate
+    solved for beside the pose (:class:`~lidar3d.mapping.registration.SweepTurn`, its times in
+    the order corners then surfaces; only with a prior); the probe then moves the points as
+    turned by the rate found, and a scan the probe finds degenerate keeps the predicted rate.
     """
     source = np.concatenate([corner_lidar, surf_lidar])
     find_matches = _matcher(target, len(corner_lidar), len(surf_lidar))
@@ -86,11 +97,16 @@ def register_to_submap(
         find_matches,
         max_iterations=config.max_iterations if max_iterations is None else max_iterations,
         initial_scale_m=prior.displacement_sigma_m(_median_range_m(corner_lidar)) if prior and widen_search else 0.0,
+        turn=turn,
     )
     if config.probe_shift_m <= 0 or result.iterations == 0:
         return result
+    probed = corner_lidar, surf_lidar
+    if turn is not None and result.yaw_rate_correction_rad_s:
+        turned = turn.turned(source, result.yaw_rate_correction_rad_s)
+        probed = turned[: len(corner_lidar)], turned[len(corner_lidar) :]
     stride = config.probe_point_stride
-    probe_corner, probe_surf = corner_lidar[::stride], surf_lidar[::stride]
+    probe_corner, probe_surf = probed[0][::stride], probed[1][::stride]
     probe = (np.concatenate([probe_corner, probe_surf]), _matcher(target, len(probe_corner), len(probe_surf)))
     return _solve_probed(result, source, find_matches, probe, config, solve)
 
@@ -183,7 +199,9 @@ def _solve_probed(
     eigenvalue) and the pose is solved again from ``result`` (a warm start): with a prior that
     direction is the prior's, without one it keeps the guess. ``solve``: :func:`solve_pose` with
     the registration's settings. ``probe``: the (M, 3) source points the probe moves (every
-    ``probe_point_stride``-th corner and surface point) and their matcher."""
+    ``probe_point_stride``-th corner and surface point, turned by the yaw rate ``result`` found)
+    and their matcher. The second solve keeps the predicted rate (a scan with a degenerate
+    direction does not solve for it): ``source`` is as deskewed with the prediction."""
     direction = np.zeros(6)
     direction[:3] = np.linalg.eigh(result.information[:3, :3])[1][:, 0]
     share = probe_return_share(

@@ -45,7 +45,7 @@ from lidar3d.mapping.keyframes import Submap
 from lidar3d.mapping.motion_model import MotionModel, nominal_step_information
 from lidar3d.mapping.moving_points import MovingPoints
 from lidar3d.mapping.odometry import OdometryStep, ScanToScanOdometry
-from lidar3d.mapping.registration import MatchRows, PosePrior, SolveResult, observed_share
+from lidar3d.mapping.registration import MatchRows, PosePrior, SolveResult, SweepTurn, observed_share
 from lidar3d.mapping.scan_to_map import register_again, register_to_submap, sweep_tilt_on_submap
 from lidar3d.mapping.se3 import exp_se3
 from lidar3d.mapping.sweep import SweepFeatures
@@ -195,6 +195,10 @@ class Tracker:
         self._motion = MotionModel.of_config(config.motion)
         self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
         self._tilt_prior = TiltPrior.of_config(config.motion, self._sweep_period_s)
+        # The sweep's yaw rate may differ from the predicted one by what the vehicle's yaw
+        # acceleration changes over one sweep (one sigma), (rad/s)^-2; 0: not solved for.
+        turn_sigma = config.motion.yaw_accel_rad_s2 * self._sweep_period_s
+        self._turn_information = turn_sigma**-2.0 if config.mapping.solve_sweep_yaw_rate else 0.0
         self._moving = moving
         self._latest: _Latest | None = None
         self._motion_known = False  # the motion model has learned a twist
@@ -225,7 +229,11 @@ class Tracker:
         lost_keyframes = self._submap.lost_keyframes_in_target()
         T_world_lidar = refinement.T_world_lidar
         motion_known = self._motion_known
-        T_world_reference = _moved_by(T_world_lidar, offset_s, predicted)
+        sweep_twist = predicted
+        if refinement.registration is not None and refinement.registration.yaw_rate_correction_rad_s:
+            sweep_twist = predicted.copy()
+            sweep_twist[5] += refinement.registration.yaw_rate_correction_rad_s
+        T_world_reference = _moved_by(T_world_lidar, offset_s, sweep_twist)
         well_constrained = refinement.registration is not None and refinement.registration.degenerate_axes == 0
         if refinement.prior is not None:
             self._motion.learn_innovation(
@@ -242,7 +250,7 @@ class Tracker:
         # The pose at the reference instant is the stamp's moved with the motion the sweep was
         # deskewed with; a sweep deskewed before any motion was known (predicted still) takes the
         # first motion learned once there is one.
-        reference_twist = predicted if motion_known else self._motion.twist.copy()
+        reference_twist = sweep_twist if motion_known else self._motion.twist.copy()
         if not motion_known:
             T_world_reference = _moved_by(T_world_lidar, offset_s, reference_twist)
         settled = None
@@ -253,7 +261,7 @@ class Tracker:
             scan,
             sweep,
             T_world_lidar,
-            predicted,
+            sweep_twist,
             well_constrained,
             offset_s,
             reference_twist,
@@ -341,6 +349,7 @@ class Tracker:
             self._reference(prior),
             prior is not None,
             self._tilt_prior.sigma_rad,
+            turn=(twist, self._turn_information) if prior is not None and self._turn_information > 0 else None,
         )
         self._tilt_prior.learn(estimated)
         if refined.iterations == 0:
@@ -400,6 +409,8 @@ def _register(
     reference_information: np.ndarray,
     widen_search: bool,
     tilt_sigma_rad: float,
+    *,
+    turn: tuple[np.ndarray, float] | None = None,
 ) -> tuple[SolveResult, SweepTilt | None, _Source]:
     """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar``, fused with ``prior``
     when given; a direction the rows know less well than the (6, 6) ``reference_information`` is
@@ -410,15 +421,25 @@ def _register(
     deskewing must to register again (``redeskew_threshold_m`` at ``redeskew_lever_m``). Returns
     the registration, the tilt estimated (None: none) and the points it matched. The tilt moves the registration's
     points only: the keyframes and the map keep the sweep as deskewed (fed back into the map,
-    the tilts followed the map's own slope errors: ``hilly`` seed 0 0.011 -> 0.030 m)."""
+    the tilts followed the map's own slope errors: ``hilly`` seed 0 0.011 -> 0.030 m).
+    ``turn``: the (6,) twist the sweep was deskewed with and the prior information of its yaw rate,
+    (rad/s)^-2, to solve the rate beside the pose (:class:`~lidar3d.mapping.registration.SweepTurn`);
+    the points returned are then turned by the rate found."""
     corner, corner_time_s, surf, surf_time_s = deskewed.timed_registration_clouds(mp)
     surf, surf_time_s = voxel_downsample(surf, mp.scan_surf_voxel_m, surf_time_s)
     target = submap.target(T_world_lidar[:3, 3])
     register = functools.partial(
         register_to_submap, target, config=mp, reference_information=reference_information, prior=prior
     )
-    result = register(corner, surf, T_world_lidar, max_iterations=iterations, widen_search=widen_search)
-    source = _Source(np.concatenate([corner, surf]), np.concatenate([corner_time_s, surf_time_s]))
+    time_s = np.concatenate([corner_time_s, surf_time_s])
+    sweep_turn = None if turn is None else SweepTurn(time_s, turn[0][:3], turn[1])
+    result = register(
+        corner, surf, T_world_lidar, max_iterations=iterations, widen_search=widen_search, turn=sweep_turn
+    )
+    points = np.concatenate([corner, surf])
+    if sweep_turn is not None and result.yaw_rate_correction_rad_s:
+        points = sweep_turn.turned(points, result.yaw_rate_correction_rad_s)
+    source = _Source(points, time_s)
     if mp.tilt_knot_spacing_s <= 0 or result.iterations == 0:
         return result, None, source
     tilt = sweep_tilt_on_submap(
