@@ -24,10 +24,10 @@ def rotation_angle(R: np.ndarray) -> float:
     return float(np.arccos(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0)))
 
 
-def _street_points_world(n_per_plane: int = 300) -> tuple[np.ndarray, MatchRows]:
-    """(N,3) world points on :data:`PLANES` and the rows matching each to its plane."""
+def street_points_world(planes: list = PLANES, n_per_plane: int = 300) -> tuple[np.ndarray, MatchRows]:
+    """(N,3) world points on ``planes`` ((normal, offset) pairs) and the rows matching each to its plane."""
     points, normals, offsets = [], [], []
-    for normal, offset in PLANES:
+    for normal, offset in planes:
         p = RNG.uniform(-20.0, 20.0, (n_per_plane, 3))
         p -= np.outer(p @ normal + offset, normal)  # onto the plane n . q + d = 0
         points.append(p)
@@ -51,7 +51,7 @@ def test_a_sweep_deskewed_with_its_true_motion_lands_on_the_true_pose():
     true pose back, without a search in the map; the first registration on the wrong deskewing was
     off by more than half a degree."""
     T_world_lidar = exp_se3(np.r_[2.0, 0.5, 0.0, 0.0, 0.0, 0.2])
-    world, rows = _street_points_world()
+    world, rows = street_points_world()
     at_stamp = transform_points(invert(T_world_lidar), world)  # where each point is, seen from the stamp
     time_s = RNG.uniform(0.0, 0.1, len(world))
     true_twist, predicted = np.r_[6.0, 0.0, 0.0, 0.0, 0.0, 0.5], np.r_[6.0, 0.0, 0.0, 0.0, 0.0, 0.0]

@@ -1,44 +1,24 @@
 """The sweep's yaw rate solved beside its pose (registration.SweepTurn)."""
 
 import numpy as np
+from test_register_again import PLANES as STREET  # ground, two facades, a wall ahead and one behind
+from test_register_again import street_points_world
 
 from lidar3d.config import MappingConfig
 from lidar3d.mapping.deskew import deskew_again, deskew_points
-from lidar3d.mapping.registration import MatchRows, PosePrior, SweepTurn, solve_pose
+from lidar3d.mapping.registration import PosePrior, SweepTurn, solve_pose
 from lidar3d.mapping.se3 import exp_se3, invert, transform_points
 
 RNG = np.random.default_rng(11)
-# A street crossing: ground, two facades along x, a wall across it ahead and one behind (normal, offset).
-STREET = [
-    (np.array([0.0, 0.0, 1.0]), 1.8),
-    (np.array([0.0, 1.0, 0.0]), -6.0),
-    (np.array([0.0, -1.0, 0.0]), -5.0),
-    (np.array([-1.0, 0.0, 0.0]), 30.0),
-    (np.array([1.0, 0.0, 0.0]), 25.0),
-]
 CONFIG = MappingConfig()
 RATE_INFORMATION = (2.0 * 0.1) ** -2.0  # the vehicle model's yaw acceleration over one sweep
-
-
-def _points_on(planes: list, n_per_plane: int = 300) -> tuple[np.ndarray, MatchRows]:
-    """(N,3) world points on ``planes`` and the rows matching each to its plane."""
-    points, normals, offsets = [], [], []
-    for normal, offset in planes:
-        p = RNG.uniform(-20.0, 20.0, (n_per_plane, 3))
-        p -= np.outer(p @ normal + offset, normal)
-        points.append(p)
-        normals.append(np.repeat(normal[None], n_per_plane, axis=0))
-        offsets.append(np.full(n_per_plane, offset))
-    return np.concatenate(points), MatchRows(
-        np.arange(n_per_plane * len(planes)), np.concatenate(normals), np.concatenate(offsets)
-    )
 
 
 def _turning_sweep(planes: list, true_rate: float, predicted_rate: float):
     """A sweep fired while turning at ``true_rate`` (rad/s) at 6 m/s, deskewed with
     ``predicted_rate``: (pose at the stamp, points, firing times, rows, predicted twist)."""
     T_world_lidar = exp_se3(np.r_[2.0, 0.5, 0.0, 0.0, 0.0, 0.2])
-    world, rows = _points_on(planes)
+    world, rows = street_points_world(planes)
     time_s = RNG.uniform(0.0, 0.1, len(world))
     true_twist, predicted = np.r_[6.0, 0.0, 0.0, 0.0, 0.0, true_rate], np.r_[6.0, 0.0, 0.0, 0.0, 0.0, predicted_rate]
     fired = deskew_points(transform_points(invert(T_world_lidar), world), time_s, -true_twist)
@@ -128,3 +108,15 @@ def test_without_a_prior_the_rate_is_not_solved():
         turn=SweepTurn(time_s, predicted[:3], RATE_INFORMATION),
     )
     assert result.yaw_rate_correction_rad_s == 0.0
+
+
+def test_a_steady_sweep_is_registered_as_without_the_rate():
+    """The prediction was right (both 0.3 rad/s): the correction the rows find is within the noise
+    and dropped, and the pose is the pose-only registration's."""
+    T_true, points, time_s, rows, predicted = _turning_sweep(STREET, true_rate=0.3, predicted_rate=0.3)
+    noisy = points + RNG.normal(0.0, 0.01, points.shape)
+    plain = _solve(T_true, noisy, rows, None)
+    turned = _solve(T_true, noisy, rows, SweepTurn(time_s, predicted[:3], RATE_INFORMATION))
+    assert turned.yaw_rate_correction_rad_s == 0.0
+    assert np.allclose(turned.T_target_source, plain.T_target_source, atol=2e-4)
+    assert np.allclose(turned.information, plain.information, rtol=0.05)

@@ -183,15 +183,22 @@ class SweepTurn:
     azimuths); the zero-mean prior ``information`` (the vehicle model's yaw acceleration over one
     sweep) decides it where they do not.
 
+    The rate is kept only where the rows tell it from the prediction: a correction within
+    ``min_sigmas`` of its posterior standard deviation is dropped and the pose taken with the rate
+    held at the prediction (to first order from the joint solution), so a steady stretch, where
+    the prediction is right, is registered as without the rate.
+
     Attributes:
         time_s: (N,) firing time of each source point, s from the stamp.
         velocity_mps: (3,) linear velocity the sweep was deskewed with (lidar frame).
         information: prior information of ``w``, (rad/s)^-2.
+        min_sigmas: a correction is kept from this many posterior standard deviations.
     """
 
     time_s: np.ndarray
     velocity_mps: np.ndarray
     information: float
+    min_sigmas: float = 3.0
 
     def turned(self, points: np.ndarray, rate_rad_s: float) -> np.ndarray:
         """(N, 3) source points with the sweep's yaw rate corrected by ``rate_rad_s``."""
@@ -737,6 +744,17 @@ def solve_pose(
             iteration += 1
             break
         iteration += 1
+    if rate_rad_s and turn is not None and prior_information is not None and len(A) > k:
+        # Keep the rate only where the rows tell it from the prediction (|w| above min_sigmas of its
+        # posterior sigma); otherwise the pose with the rate held at the prediction, to first
+        # order from the joint solution (x + A_pp^-1 A_pr w), and the pose-only information.
+        coupling = A[:k, k]
+        moved = np.linalg.solve(A[:k, :k] + 1e-9 * np.eye(k), coupling)
+        rate_variance = 1.0 / max(float(A[k, k] - coupling @ moved), 1e-12)
+        if abs(rate_rad_s) < turn.min_sigmas * math.sqrt(rate_variance):
+            x[free] += moved * rate_rad_s
+            rate_rad_s = 0.0
+            information[np.ix_(free, free)] = H_all[:k, :k] / sigma_m**2
     if reference is not None:
         degenerate = unobserved_directions(information[np.ix_(free, free)], reference)[0]
     return SolveResult(

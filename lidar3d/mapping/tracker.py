@@ -195,10 +195,7 @@ class Tracker:
         self._motion = MotionModel.of_config(config.motion)
         self._nominal_information = nominal_step_information(self._vehicle, self._sweep_period_s)
         self._tilt_prior = TiltPrior.of_config(config.motion, self._sweep_period_s)
-        # The sweep's yaw rate may differ from the predicted one by what the vehicle's yaw
-        # acceleration changes over one sweep (one sigma), (rad/s)^-2; 0: not solved for.
-        turn_sigma = config.motion.yaw_accel_rad_s2 * self._sweep_period_s
-        self._turn_information = turn_sigma**-2.0 if config.mapping.solve_sweep_yaw_rate else 0.0
+        self._turn = _sweep_turn_prior(config, self._sweep_period_s)
         self._moving = moving
         self._latest: _Latest | None = None
         self._motion_known = False  # the motion model has learned a twist
@@ -349,7 +346,7 @@ class Tracker:
             self._reference(prior),
             prior is not None,
             self._tilt_prior.sigma_rad,
-            turn=(twist, self._turn_information) if prior is not None and self._turn_information > 0 else None,
+            turn=None if prior is None or self._turn is None else (twist, *self._turn),
         )
         self._tilt_prior.learn(estimated)
         if refined.iterations == 0:
@@ -410,7 +407,7 @@ def _register(
     widen_search: bool,
     tilt_sigma_rad: float,
     *,
-    turn: tuple[np.ndarray, float] | None = None,
+    turn: tuple[np.ndarray, float, float] | None = None,
 ) -> tuple[SolveResult, SweepTilt | None, _Source]:
     """Scan-to-submap registration of a deskewed sweep from ``T_world_lidar``, fused with ``prior``
     when given; a direction the rows know less well than the (6, 6) ``reference_information`` is
@@ -422,9 +419,10 @@ def _register(
     the registration, the tilt estimated (None: none) and the points it matched. The tilt moves the registration's
     points only: the keyframes and the map keep the sweep as deskewed (fed back into the map,
     the tilts followed the map's own slope errors: ``hilly`` seed 0 0.011 -> 0.030 m).
-    ``turn``: the (6,) twist the sweep was deskewed with and the prior information of its yaw rate,
-    (rad/s)^-2, to solve the rate beside the pose (:class:`~lidar3d.mapping.registration.SweepTurn`);
-    the points returned are then turned by the rate found."""
+    ``turn``: the (6,) twist the sweep was deskewed with, the prior information of its yaw rate,
+    (rad/s)^-2, and the sigmas from which a correction is kept, to solve the rate beside the pose
+    (:class:`~lidar3d.mapping.registration.SweepTurn`); the points returned are then turned by the
+    rate found."""
     corner, corner_time_s, surf, surf_time_s = deskewed.timed_registration_clouds(mp)
     surf, surf_time_s = voxel_downsample(surf, mp.scan_surf_voxel_m, surf_time_s)
     target = submap.target(T_world_lidar[:3, 3])
@@ -432,7 +430,7 @@ def _register(
         register_to_submap, target, config=mp, reference_information=reference_information, prior=prior
     )
     time_s = np.concatenate([corner_time_s, surf_time_s])
-    sweep_turn = None if turn is None else SweepTurn(time_s, turn[0][:3], turn[1])
+    sweep_turn = None if turn is None else SweepTurn(time_s, turn[0][:3], turn[1], turn[2])
     result = register(
         corner, surf, T_world_lidar, max_iterations=iterations, widen_search=widen_search, turn=sweep_turn
     )
@@ -455,6 +453,16 @@ def _register(
         widen_search=False,
     )
     return (again if again.iterations else result), tilt, source  # a tilted sweep settles anew: source unused
+
+
+def _sweep_turn_prior(config: Config, sweep_period_s: float) -> tuple[float, float] | None:
+    """What the registration solves the sweep's yaw rate with (None: not solved for,
+    ``mapping.solve_sweep_yaw_rate`` off): the prior information of its correction, (rad/s)^-2 (one
+    sigma: what the vehicle's yaw acceleration changes over one sweep), and the sigmas a correction
+    must reach to be kept (``motion.twist_change_sigmas``)."""
+    if not config.mapping.solve_sweep_yaw_rate:
+        return None
+    return (config.motion.yaw_accel_rad_s2 * sweep_period_s) ** -2.0, config.motion.twist_change_sigmas
 
 
 def _scan_to_scan_odometry(config: Config) -> ScanToScanOdometry:
