@@ -623,7 +623,7 @@ def solve_pose(
     iteration = 0
     n_rows = 0
     k = len(free)
-    turning = turn is not None and prior is not None
+    turning = turn if prior is not None else None  # None once the rate is not solved for
     rate_rad_s = 0.0
     while iteration < max_iterations:
         R, dR = _rotation_and_derivatives(x)  # (3,3), (3,3,3)
@@ -637,7 +637,7 @@ def solve_pose(
             if anneal
             else robust_scale_m
         )
-        points = turn.turned(source, rate_rad_s) if turning and turn is not None else source
+        points = turning.turned(source, rate_rad_s) if turning is not None else source
         if iteration % rematch_every == 0:
             q_all = points @ T[:3, :3].T + T[:3, 3]
             matches = find_matches(q_all, 3.0 * scale_m if robust_scale_m > 0 else None)
@@ -669,8 +669,8 @@ def solve_pose(
         Jf = J[:, free] * w[:, None]
         if data_scaling is not None:
             Jf = Jf @ data_scaling[np.ix_(free, free)]
-        if turning and turn is not None:
-            rate_column = turn.column(n, np.take(p, use, axis=0), np.take(matches.source_index, use), R)
+        if turning is not None:
+            rate_column = turning.column(n, np.take(p, use, axis=0), np.take(matches.source_index, use), R)
             if level_normal_z > 0:
                 rate_column[np.abs(n[:, 2]) >= level_normal_z] = 0.0  # level rows hold no yaw
             Jf = np.column_stack([Jf, rate_column * w])
@@ -692,29 +692,30 @@ def solve_pose(
                 degenerate = int((~keep).sum())
                 if degenerate and prior is None:
                     projector = vecs @ np.diag(keep.astype(float)) @ vecs.T
-            if turning and turn is not None:
+            if turning is not None:
                 # The rate is solved for only in a scan that observes every direction of its pose
                 # and knows the rate better than the vehicle model does (its information with the
                 # pose unknown above the prior's: the test of unobserved_directions); elsewhere it
                 # keeps the prediction (on open land the rows' claim on it is not to be trusted).
                 coupling = H_all[:k, k]
                 rate_information = H_all[k, k] - coupling @ np.linalg.solve(H + 1e-9 * np.eye(k), coupling)
-                turning = degenerate == 0 and rate_information / sigma_m**2 >= turn.information
-        if turning and turn is not None:
+                if degenerate or rate_information / sigma_m**2 < turning.information:
+                    turning = None
+        if turning is not None:
             # The pose's information with the rate unknown (its prior included): the Schur complement.
             coupling = H_all[:k, k]
-            H = H - np.outer(coupling, coupling) / (H_all[k, k] + turn.information * sigma_m**2)
+            H = H - np.outer(coupling, coupling) / (H_all[k, k] + turning.information * sigma_m**2)
             information[np.ix_(free, free)] = H / sigma_m**2
         rate_step_deg = 0.0
         if prior_information is not None and x_prior is not None:
             # Maximum a posteriori step: rows and prior, each weighted by its information.
-            if turning and turn is not None and len(g_all) > k:
+            if turning is not None:
                 A = H_all / sigma_m**2
                 A[:k, :k] += prior_information
-                A[k, k] += turn.information
+                A[k, k] += turning.information
                 b = g_all / sigma_m**2
                 b[:k] += prior_information @ _wrapped_difference(x, x_prior)[free]
-                b[k] += turn.information * rate_rad_s
+                b[k] += turning.information * rate_rad_s
             else:
                 A = H / sigma_m**2 + prior_information
                 b = g / sigma_m**2 + prior_information @ _wrapped_difference(x, x_prior)[free]
@@ -725,9 +726,9 @@ def solve_pose(
         except np.linalg.LinAlgError:
             break
         dx = step[:k]
-        if len(step) > k and turn is not None:
+        if turning is not None:
             rate_rad_s += float(step[k])
-            rate_step_deg = np.rad2deg(abs(float(step[k])) * float(np.max(np.abs(turn.time_s), initial=0.0)))
+            rate_step_deg = np.rad2deg(abs(float(step[k])) * float(np.max(np.abs(turning.time_s), initial=0.0)))
         if projector is not None:
             dx = projector @ dx
         x[free] += dx
@@ -744,14 +745,14 @@ def solve_pose(
             iteration += 1
             break
         iteration += 1
-    if rate_rad_s and turn is not None and prior_information is not None and len(A) > k:
+    if rate_rad_s and turning is not None:
         # Keep the rate only where the rows tell it from the prediction (|w| above min_sigmas of its
         # posterior sigma); otherwise the pose with the rate held at the prediction, to first
         # order from the joint solution (x + A_pp^-1 A_pr w), and the pose-only information.
         coupling = A[:k, k]
         moved = np.linalg.solve(A[:k, :k] + 1e-9 * np.eye(k), coupling)
         rate_variance = 1.0 / max(float(A[k, k] - coupling @ moved), 1e-12)
-        if abs(rate_rad_s) < turn.min_sigmas * math.sqrt(rate_variance):
+        if abs(rate_rad_s) < turning.min_sigmas * math.sqrt(rate_variance):
             x[free] += moved * rate_rad_s
             rate_rad_s = 0.0
             information[np.ix_(free, free)] = H_all[:k, :k] / sigma_m**2
