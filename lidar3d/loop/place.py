@@ -187,7 +187,9 @@ class PlaceIndex:
 def _best_roll(query_key: np.ndarray, other_key: np.ndarray) -> int:
     """Roll of ``other_key`` that best lines it up with ``query_key`` (least squares)."""
     n = len(query_key)
-    errors = [float(np.sum((query_key - np.roll(other_key, s)) ** 2)) for s in range(n)]
+    # rolled[s] is np.roll(other_key, s): element i comes from i - s
+    rolled = other_key[(np.arange(n)[None, :] - np.arange(n)[:, None]) % n]
+    errors = np.sum((query_key[None, :] - rolled) ** 2, axis=1)
     return int(np.argmin(errors))
 
 

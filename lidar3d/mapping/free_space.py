@@ -184,22 +184,29 @@ def _cross_normals(points: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray,
     it is known: the cross product of the tangents to the pixel's neighbours in azimuth (two columns
     away) and in ring, on each axis the neighbour nearer in range (the same surface, more likely)."""
     valid = range_m > 0.0
+    # |point| of every pixel once: each neighbour's is the same array shifted (as the points are)
+    length = np.linalg.norm(points, axis=-1)
 
-    def tangent(before: np.ndarray, after: np.ndarray, ok_before: np.ndarray, ok_after: np.ndarray):
-        gap_before = np.where(ok_before, np.abs(np.linalg.norm(before, axis=-1) - range_m), np.inf)
-        gap_after = np.where(ok_after, np.abs(np.linalg.norm(after, axis=-1) - range_m), np.inf)
+    def tangent(shifted, ok_before: np.ndarray, ok_after: np.ndarray):
+        """Tangent to the neighbour nearer in range of the two ``shifted`` gives (points, lengths)."""
+        (before, after), (length_before, length_after) = shifted(points), shifted(length)
+        gap_before = np.where(ok_before, np.abs(length_before - range_m), np.inf)
+        gap_after = np.where(ok_after, np.abs(length_after - range_m), np.inf)
         use_after = gap_after < gap_before
         return np.where(use_after[..., None], after, before) - points, np.isfinite(np.minimum(gap_before, gap_after))
 
     step = 2
-    along_azimuth, ok_azimuth = tangent(
-        np.roll(points, step, axis=1), np.roll(points, -step, axis=1), np.roll(valid, step, 1), np.roll(valid, -step, 1)
-    )
-    below = np.concatenate([points[:1], points[:-1]])
-    above = np.concatenate([points[1:], points[-1:]])
+
+    def along_azimuth_of(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.roll(image, step, axis=1), np.roll(image, -step, axis=1)
+
+    def along_ring_of(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return np.concatenate([image[:1], image[:-1]]), np.concatenate([image[1:], image[-1:]])
+
+    along_azimuth, ok_azimuth = tangent(along_azimuth_of, np.roll(valid, step, 1), np.roll(valid, -step, 1))
     valid_below = np.concatenate([np.zeros_like(valid[:1]), valid[:-1]])
     valid_above = np.concatenate([valid[1:], np.zeros_like(valid[:1])])
-    along_ring, ok_ring = tangent(below, above, valid_below, valid_above)
+    along_ring, ok_ring = tangent(along_ring_of, valid_below, valid_above)
     return np.cross(along_azimuth, along_ring), valid & ok_azimuth & ok_ring
 
 
@@ -330,36 +337,42 @@ def voxel_evidence(
     # Ring of the nearest elevation: the boundaries halfway between neighbouring beams, as sines.
     sin_boundaries = np.sin(0.5 * (elevation_rad[1:] + elevation_rad[:-1]))
     margin = config.range_margin_m
-    # (P, V, 3) every centroid in every probe's lidar frame: R^T (c - o).
-    local = np.matmul(centroids_world[None] - stack.origin_m[slots, None], stack.R_world_lidar[slots]).reshape(-1, 3)
+    R = stack.R_world_lidar[slots]
+    # (P, V, 3) every centroid in every probe's lidar frame, R^T (c - o), flat: pair = probe * V + voxel
+    local = np.matmul(centroids_world[None] - stack.origin_m[slots, None], R).reshape(-1, 3)
     x, y, z = local[:, 0], local[:, 1], local[:, 2]
     rho = np.sqrt(x * x + y * y + z * z)
+    # Each test below keeps the pairs that can still give evidence, so the next works on fewer
+    # (the same values as on all pairs: twice as fast on 2,000-3,000 voxels x 16-25 probes).
+    pair: np.ndarray = np.flatnonzero((rho > margin) & (rho <= config.max_range_m))
+    x, y, z, rho = x[pair], y[pair], z[pair], rho[pair]
     ring = np.searchsorted(sin_boundaries, z / np.maximum(rho, 1e-9))
     column = (np.floor((np.arctan2(y, x) + np.pi) * (n_bins / (2.0 * np.pi))).astype(np.int64)) % n_bins
-    pixel = (np.repeat(slots, n_voxels) * n_rings + ring) * n_bins + column
-    # Whole-array arithmetic with 1-D gathers (cheaper than selecting rows first).
+    pixel = (slots[pair // n_voxels] * n_rings + ring) * n_bins + column
     return_m = stack.range_m.reshape(-1)[pixel].astype(np.float64)
+    keep = np.flatnonzero(return_m > 0.0)  # a pixel without a return proves nothing
+    pair, x, y, z, rho, pixel, return_m = (a[keep] for a in (pair, x, y, z, rho, pixel, return_m))
     flat = stack.points_lidar.reshape(-1)
-    along = (x * flat[3 * pixel] + y * flat[3 * pixel + 1] + z * flat[3 * pixel + 2]) / np.maximum(return_m, 1e-9)
-    passes = (return_m > 0.0) & (rho > margin) & (rho <= config.max_range_m)
-    passes &= rho * rho - along * along < config.pass_tolerance_m**2
+    ray: tuple[np.ndarray, ...] = (flat[3 * pixel], flat[3 * pixel + 1], flat[3 * pixel + 2])  # the return, lidar frame
+    along = (x * ray[0] + y * ray[1] + z * ray[2]) / np.maximum(return_m, 1e-9)
+    keep = np.flatnonzero(rho * rho - along * along < config.pass_tolerance_m**2)  # the ray passes the centroid
+    pair, x, y, z, pixel, return_m, along = (a[keep] for a in (pair, x, y, z, pixel, return_m, along))
+    ray = tuple(a[keep] for a in ray)
     beyond: float | np.ndarray = margin
     if config.grazing_slack:
         offset = config.pass_tolerance_m + along * np.tan(np.deg2rad(config.pose_angle_deg))
         sine = stack.sin_grazing.reshape(-1)[pixel].astype(np.float64)
         beyond = np.maximum(margin, offset / np.maximum(sine, 1e-3))
-    through = passes & (return_m > along + beyond)
+    through = return_m > along + beyond
     if normals_world is not None:
         # How far in front of the voxel's surface the ray passes: n . (closest point of the ray - c).
-        m = np.matmul(normals_world[None], stack.R_world_lidar[slots]).reshape(-1, 3)
-        m_ray = (
-            m[:, 0] * flat[3 * pixel] + m[:, 1] * flat[3 * pixel + 1] + m[:, 2] * flat[3 * pixel + 2]
-        ) / np.maximum(return_m, 1e-9)
+        m = np.matmul(normals_world[None], R).reshape(-1, 3)[pair]
+        m_ray = (m[:, 0] * ray[0] + m[:, 1] * ray[1] + m[:, 2] * ray[2]) / np.maximum(return_m, 1e-9)
         in_front = along * m_ray - (m[:, 0] * x + m[:, 1] * y + m[:, 2] * z)
         through &= in_front <= config.surface_tolerance_m + along * np.tan(np.deg2rad(config.surface_angle_deg))
-    voxel = np.tile(np.arange(n_voxels), slots.size)
+    voxel = pair % n_voxels
     misses = np.bincount(voxel[through], minlength=n_voxels)
-    hits = np.bincount(voxel[passes & (np.abs(return_m - along) <= margin)], minlength=n_voxels)
+    hits = np.bincount(voxel[np.abs(return_m - along) <= margin], minlength=n_voxels)
     return hits, misses
 
 
