@@ -368,3 +368,31 @@ def test_a_voxel_gone_with_its_cluster_is_not_kept_as_clearly_static(city):
             decided += 1
     assert n_dynamic > 100
     assert long_held == 0
+
+
+def test_a_filter_without_points_decides_the_same_voxels(city):
+    """Without ``per_point`` a decided sweep carries only its voxels (what the dense map takes when its
+    voxels are the filter's), with the same sums and decisions as the per-point filter's."""
+    from lidar3d.mapping.free_space import DynamicFilter
+
+    config = dataclasses.replace(Config().dynamic, window_scans=12, probe_every=2)
+    model = Config().sensor.resolved_model
+    filters = [DynamicFilter(config, model.elevation_deg, model.n_columns, per_point=p) for p in (True, False)]
+    decided: list[list] = [[], []]
+    for scan, T, world, _ in city:
+        sweep = PlacedSweep(scan.points, world, scan.ring, scan.intensity, T)
+        for out, dynamic_filter in zip(decided, filters, strict=True):
+            out += dynamic_filter.add(sweep)
+    for out, dynamic_filter in zip(decided, filters, strict=True):
+        out += dynamic_filter.flush()
+    assert len(decided[0]) == len(decided[1]) == len(city)
+    n_dynamic = 0
+    for with_points, voxels_only in zip(*decided, strict=True):
+        np.testing.assert_array_equal(with_points.voxel_keys, voxels_only.voxel_keys)
+        np.testing.assert_array_equal(with_points.voxel_sums, voxels_only.voxel_sums)
+        np.testing.assert_array_equal(with_points.voxel_dynamic, voxels_only.voxel_dynamic)
+        assert voxels_only.points_world is None and voxels_only.dynamic is None
+        index = np.searchsorted(with_points.voxel_keys, voxel_keys(with_points.points_world, config.voxel_m))
+        np.testing.assert_array_equal(with_points.dynamic, with_points.voxel_dynamic[index])
+        n_dynamic += int(with_points.voxel_dynamic.sum())
+    assert n_dynamic > 50

@@ -67,8 +67,12 @@ class DenseMap:
         self.static = VoxelMap(config.mapping.map_voxel_m)
         self.dynamic = VoxelMap(config.mapping.map_voxel_m)
         model = config.sensor.resolved_model
+        # points are needed one by one only where the filter's voxels are not the map's
+        per_point = config.dynamic.voxel_m != config.mapping.map_voxel_m
         self._filter = (
-            DynamicFilter(config.dynamic, model.elevation_deg, model.n_columns) if config.dynamic.enabled else None
+            DynamicFilter(config.dynamic, model.elevation_deg, model.n_columns, per_point=per_point)
+            if config.dynamic.enabled
+            else None
         )
         self._pieces = pieces
         self._anchors: deque[MapAnchor | None] = deque()  # of the sweeps waiting in the filter, oldest first
@@ -151,11 +155,13 @@ class DenseMap:
             if self._pieces is not None and anchor is not None:
                 self._pieces.add(anchor, sweep.voxel_keys, sweep.voxel_sums, sweep.voxel_dynamic)
             return
-        static = ~sweep.dynamic
-        self.static.insert(sweep.points_world[static], sweep.intensity[static])
-        self.dynamic.insert(sweep.points_world[sweep.dynamic], sweep.intensity[sweep.dynamic])
+        points, intensity, dynamic = sweep.points_world, sweep.intensity, sweep.dynamic
+        if points is None or intensity is None or dynamic is None:
+            raise ValueError("a dense map whose voxels are not the dynamic filter's needs its points")
+        self.static.insert(points[~dynamic], intensity[~dynamic])
+        self.dynamic.insert(points[dynamic], intensity[dynamic])
         if self._pieces is not None and anchor is not None:
-            self._pieces.add_points(anchor, sweep.points_world, sweep.intensity, sweep.dynamic)
+            self._pieces.add_points(anchor, points, intensity, dynamic)
 
 
 def build_dense_map(scans: Iterable[Scan], trajectory: Trajectory, config: Config) -> DenseMap:

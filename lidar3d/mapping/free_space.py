@@ -83,24 +83,25 @@ class PlacedSweep:
 
 @dataclass(frozen=True, slots=True)
 class FilteredSweep:
-    """A sweep decided: its world points and which of them lie in space seen through, also grouped
-    by voxel (``DynamicConfig.voxel_m``) as a voxel map takes them.
+    """A sweep decided: its voxels (``DynamicConfig.voxel_m``) as a voxel map takes them, which of
+    them lie in space seen through, and, from a filter that keeps them (``per_point``), its points.
 
     Attributes:
-        points_world: (N,3) float64 metres, world frame.
-        intensity: (N,) float32.
-        dynamic: (N,) bool, the point lies in a voxel other sweeps saw through.
         voxel_keys: (V,) sorted keys (:func:`~lidar3d.mapping.voxel.voxel_keys`) of the sweep's voxels.
-        voxel_sums: (V,5) per voxel the sums of x, y, z and intensity of its points, and their count.
-        voxel_dynamic: (V,) bool, the voxel is dynamic (``dynamic`` is this per point).
+        voxel_sums: (V,5) per voxel the sums of x, y, z (world frame, metres) and intensity of its
+            points, and their count.
+        voxel_dynamic: (V,) bool, the voxel is dynamic (other sweeps saw through it).
+        points_world: (N,3) float64 metres, world frame; None from a filter without ``per_point``.
+        intensity: (N,) float32, or None as ``points_world``.
+        dynamic: (N,) bool, the point lies in a dynamic voxel, or None as ``points_world``.
     """
 
-    points_world: np.ndarray
-    intensity: np.ndarray
-    dynamic: np.ndarray
     voxel_keys: np.ndarray
     voxel_sums: np.ndarray
     voxel_dynamic: np.ndarray
+    points_world: np.ndarray | None = None
+    intensity: np.ndarray | None = None
+    dynamic: np.ndarray | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -396,20 +397,21 @@ class _WaitingSweep:
 
     Attributes:
         index: its place in the input (0, 1, ...).
-        points_world: (N,3) world points; ``intensity`` (N,) float32.
         origin_world: (3,) its sensor position.
-        keys: (V,) sorted voxel keys; ``inverse``: (N,) int32 each point's voxel.
+        keys: (V,) sorted voxel keys; ``sums``: (V,5) per voxel the sums of x, y, z and intensity
+            and the count (:attr:`FilteredSweep.voxel_sums`).
         mean_normals: (V,3) float32 per voxel the mean of its points' unit surface normals (world frame,
             turned towards the sensor; 0 for a point whose normal is unknown), or None.
+        points: with ``per_point``, the (N,3) world points, (N,) float32 intensities and (N,) int32
+            voxel of each point; None without.
     """
 
     index: int
-    points_world: np.ndarray
-    intensity: np.ndarray
     origin_world: np.ndarray
     keys: np.ndarray
-    inverse: np.ndarray
+    sums: np.ndarray
     mean_normals: np.ndarray | None
+    points: tuple[np.ndarray, np.ndarray, np.ndarray] | None
 
 
 class DynamicFilter:
@@ -424,10 +426,16 @@ class DynamicFilter:
         config: the ``[dynamic]`` section.
         elevation_deg: the sensor's ascending beam elevations (index = ring).
         n_columns: the sensor's azimuth cells per sweep (the probes' columns).
+        per_point: the decided sweeps carry their points and a flag per point; without it only their
+            voxels (what a voxel map of ``config.voxel_m`` takes: a waiting sweep then holds about a
+            third of the memory).
     """
 
-    def __init__(self, config: DynamicConfig, elevation_deg: tuple[float, ...], n_columns: int) -> None:
+    def __init__(
+        self, config: DynamicConfig, elevation_deg: tuple[float, ...], n_columns: int, *, per_point: bool = True
+    ) -> None:
         self.config = config
+        self.per_point = per_point
         self._elevation_rad = np.deg2rad(np.asarray(elevation_deg, dtype=np.float64))
         self._n_bins = int(n_columns)
         self._sweeps: deque[_WaitingSweep] = deque()
@@ -462,29 +470,31 @@ class DynamicFilter:
 
     def _grouped(self, index: int, sweep: PlacedSweep) -> _WaitingSweep:
         """``sweep`` grouped by voxel, with the surface normals of its voxels when they are used:
-        what waits for its window (its lidar frame points go: half the memory)."""
+        what waits for its window (its lidar frame points go; its world points too without
+        ``per_point``)."""
         keys, inverse = np.unique(voxel_keys(sweep.points_world, self.config.voxel_m), return_inverse=True)
         inverse = inverse.reshape(-1).astype(np.int32)
+        counts = np.bincount(inverse, minlength=keys.size)
+        sums = np.column_stack(
+            [
+                group_sums(inverse, sweep.points_world, keys.size),
+                np.bincount(inverse, weights=sweep.intensity, minlength=keys.size),
+                counts,
+            ]
+        )
         mean_normals = None
         if self.config.surface_side:
             normals = point_normals(sweep.points_lidar, sweep.ring, len(self._elevation_rad), self._n_bins)
             normals = normals @ sweep.T_world_lidar[:3, :3].T
-            counts = np.bincount(inverse, minlength=keys.size)
             mean_normals = (group_sums(inverse, normals, keys.size) / counts[:, None]).astype(np.float32)
         origin = sweep.T_world_lidar[:3, 3].copy()
-        return _WaitingSweep(index, sweep.points_world, sweep.intensity, origin, keys, inverse, mean_normals)
+        points = (sweep.points_world, sweep.intensity, inverse) if self.per_point else None
+        return _WaitingSweep(index, origin, keys, sums, mean_normals, points)
 
     def _decide(self) -> FilteredSweep:
         waiting = self._sweeps.popleft()
-        index, keys, inverse, points = waiting.index, waiting.keys, waiting.inverse, waiting.points_world
+        index, keys, sums = waiting.index, waiting.keys, waiting.sums
         config = self.config
-        sums = np.column_stack(
-            [
-                group_sums(inverse, points, keys.size),
-                np.bincount(inverse, weights=waiting.intensity, minlength=keys.size),
-                np.bincount(inverse, minlength=keys.size),
-            ]
-        )
         dynamic, valid_until = self._recalled(keys, index)
         test = np.flatnonzero(valid_until < 0)
         centroids = sums[test, :3] / sums[test, 4:5]
@@ -503,7 +513,10 @@ class DynamicFilter:
         # clearly static: hit twice, seen through by no probe, not in a cluster gone whole
         valid_until[test[(hits >= 2) & (misses == 0) & ~dynamic[test]]] = index + config.window_scans
         self._recent.appendleft((keys, dynamic, valid_until))
-        return FilteredSweep(points, waiting.intensity, dynamic[inverse], keys, sums, dynamic)
+        if waiting.points is None:
+            return FilteredSweep(keys, sums, dynamic)
+        points, intensity, inverse = waiting.points
+        return FilteredSweep(keys, sums, dynamic, points, intensity, dynamic[inverse])
 
     def _recalled(self, keys: np.ndarray, index: int) -> tuple[np.ndarray, np.ndarray]:
         """The decisions of recent sweeps on ``keys`` (sorted) that still hold: (V,) dynamic flags and
