@@ -306,6 +306,7 @@ def run_bag(
                     result = pipeline.result(partial=True, with_map=with_map)
                     summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms)
                     publisher.publish(result, summary, with_map=with_map)
+                    del result, summary  # a map checkpoint's clouds (tens of MB) are not kept until the next
                     last_checkpoint = now
                     if with_map:
                         last_map_checkpoint = now

@@ -108,7 +108,7 @@ class Submap:
         recent: int,
         corner_voxel_m: float,
         surf_voxel_m: float,
-        cache_size: int = 400,
+        cache_size: int = 100,
         rebuild_every_keyframes: int = 1,
         plane_neighbours: int = 5,
         plane_max_distance_m: float = 1.0,
