@@ -173,13 +173,26 @@ def heading(difference_deg: float, sigma_deg: float = 0.02, **changes) -> ScanMe
     )
 
 
-def test_a_scan_registered_against_keyframes_placed_while_lost_is_degraded():
-    # Observed and confident, but its submap holds keyframes that were dead-reckoned.
+def test_a_scan_registered_against_keyframes_placed_while_lost_is_degraded_unless_it_came_from_trusted_tracking():
+    # Coming out of a lost stretch: observed and confident, but its submap holds the keyframes that
+    # were dead-reckoned, and it came from them: degraded until the submap moves on past them.
+    blind = measures(sigma_m=10 * CONFIG.observed_sigma_m)
     on_lost_map = measures(lost_keyframes=3)
-    assert flags(assess_all([measures()] * 2 + [on_lost_map] * 3 + [measures()] * 2)) == "oo" + "ddd" + "oo"
+    health = flags(assess_all([blind] * 25 + [on_lost_map] * 10 + [measures()] * 2))
+    clearing = int(CONFIG.clear_after_m / 0.5) - 1  # observed scans still lost before the state clears
+    assert health == "o" * 19 + "l" * (6 + clearing) + "d" * (10 - clearing) + "oo"
+    # Coming back to them from trusted tracking (a figure eight crossing a stretch that was lost):
+    # a displaced map would pull the pose across the displacement, which the odometry contradicts;
+    # while it does not, the keyframes agree with the map the scans came from.
+    assert flags(assess_all([measures()] * 2 + [on_lost_map] * 3 + [measures()] * 2)) == "o" * 7
+    jump = measures(odometry_disagreement_m=CONFIG.jump_m, lost_keyframes=3)
+    window = int(CONFIG.jump_window_m / 0.5)
+    health = flags(
+        assess_all([measures()] * 2 + [on_lost_map] * 2 + [jump] + [on_lost_map] * (window + 5) + [measures()])
+    )
+    assert health == "oooo" + "d" * (1 + window + 5) + "o"  # once contradicted, not trusted while on them
     # A lost scan stays lost whatever its submap holds.
-    blind = measures(sigma_m=10 * CONFIG.observed_sigma_m, lost_keyframes=2)
-    assert flags(assess_all([blind] * 25))[-1] == "l"
+    assert flags(assess_all([dataclasses.replace(blind, lost_keyframes=2)] * 25))[-1] == "l"
 
 
 def _keyframe(index: int, x_m: float, lost: bool) -> Keyframe:

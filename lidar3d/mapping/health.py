@@ -67,7 +67,10 @@ map under it is right: on ``city_traffic`` the stretch after the canyon ran 12-2
 mostly by the car that follows the vehicle) with every measure calm. So a scan whose submap
 holds any keyframe placed while lost is ``degraded``, until the submap has moved on past them
 (``lost_keyframes``, counted by the tracker for the scan's own registration). Only ``lost``
-keyframes count, not ``degraded`` ones, so the flag cannot feed itself.
+keyframes count, not ``degraded`` ones, so the flag cannot feed itself. Except on a later pass: a
+scan that comes to such keyframes from an ``ok`` scan checks them (displaced keyframes would pull
+its pose across the displacement, a step the odometry contradicts), so it and the scans after it
+on them are not degraded for them until a jump or an inconsistency flags one.
 """
 
 from __future__ import annotations
@@ -401,6 +404,10 @@ class HealthMonitor:
         self._observed_m = 0.0  # fully observed travel in a row
         self._consistency = _ConsistencyWindow(config)
         self._since_jump_m = math.inf  # travel since the last step the odometry contradicted by jump_m
+        self._previous_flag = HealthFlag.OK
+        # registered against keyframes placed while lost since a scan the health trusted, with every
+        # step since consistent with the odometry: the keyframes agree with the map it came from
+        self._lost_map_checked = False
 
     def assess(self, stamp_ns: int, measures: ScanMeasures) -> ScanHealth:
         """The health of the next scan (stamp ``stamp_ns``) from its measures."""
@@ -422,12 +429,19 @@ class HealthMonitor:
         else:
             self._since_jump_m += measures.step_m
         inconsistent |= self._since_jump_m <= config.jump_window_m
+        if not measures.lost_keyframes:
+            self._lost_map_checked = False
+        elif not self._lost_map_checked:
+            self._lost_map_checked = self._previous_flag is HealthFlag.OK  # the first scan on them
+        self._lost_map_checked &= not inconsistent
+        on_unchecked_map = measures.lost_keyframes > 0 and not self._lost_map_checked
         if self._blind_m >= config.lost_after_m:
             flag = HealthFlag.LOST
-        elif measures.pose_sigma_m > config.degraded_sigma_m or inconsistent or measures.lost_keyframes:
+        elif measures.pose_sigma_m > config.degraded_sigma_m or inconsistent or on_unchecked_map:
             flag = HealthFlag.DEGRADED
         else:
             flag = HealthFlag.OK
+        self._previous_flag = flag
         return ScanHealth(stamp_ns, measures, observed, self._dead_reckoned_m, self._blind_m, flag, heading_z, along_z)
 
 
