@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import itertools
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -188,7 +189,9 @@ def _cross_normals(points: np.ndarray, range_m: np.ndarray) -> tuple[np.ndarray,
     # |point| of every pixel once: each neighbour's is the same array shifted (as the points are)
     length = np.linalg.norm(points, axis=-1)
 
-    def tangent(shifted, ok_before: np.ndarray, ok_after: np.ndarray):
+    def tangent(
+        shifted: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], ok_before: np.ndarray, ok_after: np.ndarray
+    ):
         """Tangent to the neighbour nearer in range of the two ``shifted`` gives (points, lengths)."""
         (before, after), (length_before, length_after) = shifted(points), shifted(length)
         gap_before = np.where(ok_before, np.abs(length_before - range_m), np.inf)
