@@ -191,6 +191,11 @@ def test_a_scan_registered_against_keyframes_placed_while_lost_is_degraded_unles
         assess_all([measures()] * 2 + [on_lost_map] * 2 + [jump] + [on_lost_map] * (window + 5) + [measures()])
     )
     assert health == "oooo" + "d" * (1 + window + 5) + "o"  # once contradicted, not trusted while on them
+    # Lost again while on them: the keyframes placed from then on are dead-reckoned too, so the
+    # scans coming out of it are degraded, checked or not before.
+    blind_on_map = dataclasses.replace(blind, lost_keyframes=3)
+    health = flags(assess_all([measures()] * 2 + [on_lost_map] * 2 + [blind_on_map] * 25 + [on_lost_map] * 10))
+    assert health == "o" * 4 + "o" * 19 + "l" * (6 + clearing) + "d" * (10 - clearing)
     # A lost scan stays lost whatever its submap holds.
     assert flags(assess_all([dataclasses.replace(blind, lost_keyframes=2)] * 25))[-1] == "l"
 

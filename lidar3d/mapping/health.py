@@ -70,7 +70,7 @@ holds any keyframe placed while lost is ``degraded``, until the submap has moved
 keyframes count, not ``degraded`` ones, so the flag cannot feed itself. Except on a later pass: a
 scan that comes to such keyframes from an ``ok`` scan checks them (displaced keyframes would pull
 its pose across the displacement, a step the odometry contradicts), so it and the scans after it
-on them are not degraded for them until a jump or an inconsistency flags one.
+on them are not degraded for them until a jump or an inconsistency flags one, or a scan is lost.
 """
 
 from __future__ import annotations
@@ -441,6 +441,8 @@ class HealthMonitor:
             flag = HealthFlag.DEGRADED
         else:
             flag = HealthFlag.OK
+        if flag is HealthFlag.LOST:
+            self._lost_map_checked = False  # keyframes placed from here on are lost too: unchecked
         self._previous_flag = flag
         return ScanHealth(stamp_ns, measures, observed, self._dead_reckoned_m, self._blind_m, flag, heading_z, along_z)
 
