@@ -396,3 +396,23 @@ def test_a_filter_without_points_decides_the_same_voxels(city):
         np.testing.assert_array_equal(with_points.dynamic, with_points.voxel_dynamic[index])
         n_dynamic += int(with_points.voxel_dynamic.sum())
     assert n_dynamic > 50
+
+
+def test_a_map_whose_voxels_are_not_the_filters_takes_the_filters_points_one_by_one(city):
+    """With ``dynamic.voxel_m`` other than ``mapping.map_voxel_m`` the filter hands on points (its
+    voxels are not the map's): every point kept within range lands in one of the two maps."""
+    config = Config()
+    config = dataclasses.replace(
+        config, dynamic=dataclasses.replace(config.dynamic, voxel_m=0.4, window_scans=6, probe_every=2)
+    )
+    dense_map = DenseMap(config)
+    model = config.sensor.resolved_model
+    n_kept = 0
+    for scan, T, _, _ in city:
+        r = np.linalg.norm(scan.points, axis=1)
+        n_kept += int(((r >= config.sensor.min_range_m) & (r <= model.max_range_m)).sum())
+        dense_map.add(scan, T, np.zeros(6))
+    dense_map.finish()
+    static_counts, dynamic_counts = dense_map.static.voxel_counts()[1], dense_map.dynamic.voxel_counts()[1]
+    assert static_counts.sum() + dynamic_counts.sum() == n_kept
+    assert dynamic_counts.sum() > 0

@@ -67,10 +67,15 @@ class DenseMap:
         self.static = VoxelMap(config.mapping.map_voxel_m)
         self.dynamic = VoxelMap(config.mapping.map_voxel_m)
         model = config.sensor.resolved_model
-        # points are needed one by one only where the filter's voxels are not the map's
-        per_point = config.dynamic.voxel_m != config.mapping.map_voxel_m
+        # the filter hands on its voxels as the maps take them; points one by one only otherwise
+        self._filter_voxels_are_the_maps = config.dynamic.voxel_m == config.mapping.map_voxel_m
         self._filter = (
-            DynamicFilter(config.dynamic, model.elevation_deg, model.n_columns, per_point=per_point)
+            DynamicFilter(
+                config.dynamic,
+                model.elevation_deg,
+                model.n_columns,
+                per_point=not self._filter_voxels_are_the_maps,
+            )
             if config.dynamic.enabled
             else None
         )
@@ -148,7 +153,7 @@ class DenseMap:
         self.static.move_voxels(outvoted, self.dynamic)
 
     def _insert(self, sweep: FilteredSweep, anchor: MapAnchor | None) -> None:
-        if self.config.dynamic.voxel_m == self.static.voxel_m:  # the sweep comes grouped as the maps take it
+        if self._filter_voxels_are_the_maps:  # the sweep comes grouped as the maps take it
             static = ~sweep.voxel_dynamic
             self.static.insert_grouped(sweep.voxel_keys[static], sweep.voxel_sums[static])
             self.dynamic.insert_grouped(sweep.voxel_keys[~static], sweep.voxel_sums[~static])
@@ -156,8 +161,7 @@ class DenseMap:
                 self._pieces.add(anchor, sweep.voxel_keys, sweep.voxel_sums, sweep.voxel_dynamic)
             return
         points, intensity, dynamic = sweep.points_world, sweep.intensity, sweep.dynamic
-        if points is None or intensity is None or dynamic is None:
-            raise ValueError("a dense map whose voxels are not the dynamic filter's needs its points")
+        assert points is not None and intensity is not None and dynamic is not None  # a per-point filter's
         self.static.insert(points[~dynamic], intensity[~dynamic])
         self.dynamic.insert(points[dynamic], intensity[dynamic])
         if self._pieces is not None and anchor is not None:
