@@ -89,3 +89,24 @@ def test_good_closures_meet_the_target_and_bad_folders_say_why(tmp_path, capsys)
     (run / "pose_graph.g2o").write_text("\n".join(lines + ["EDGE_SE3:QUAT 0 x"]))
     assert closure_check_main([str(run), str(truth)]) == 1
     assert "malformed edge" in capsys.readouterr().err
+
+
+def test_the_sweep_fit_follows_smooth_motion_and_leaves_out_vibration():
+    """On smooth motion the sweep fit is the true pose; a roll of 0.3 deg at 20 Hz, at its peak at
+    the stamp, is in the instant pose and (nearly) not in the fit."""
+    from closure_check import sweep_fitted_poses
+    from scipy.spatial.transform import Rotation
+
+    stamps = np.arange(0, 20 * S, S // 1000, dtype=np.int64)  # 1 kHz
+    smooth = _circle(stamps)
+    at = np.array([2 * S, 7 * S + S // 4], dtype=np.int64)
+    assert np.allclose(sweep_fitted_poses(Trajectory(stamps, smooth), at, 0.1), smooth[at // (S // 1000)], atol=1e-4)
+    roll = np.radians(0.3) * np.cos(2 * np.pi * 20 * (stamps - at[0]) / S)
+    vibrating = smooth.copy()
+    vibrating[:, :3, :3] = smooth[:, :3, :3] @ Rotation.from_rotvec(np.outer(roll, [1.0, 0.0, 0.0])).as_matrix()
+    fitted = sweep_fitted_poses(Trajectory(stamps, vibrating), at[:1], 0.1)[0]
+    instant = vibrating[at[0] // (S // 1000)]
+    truth = smooth[at[0] // (S // 1000)]
+    angle = lambda T: np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1) / 2, -1, 1)))  # noqa: E731
+    assert angle(invert(truth) @ instant) == pytest.approx(0.3, abs=1e-3)
+    assert angle(invert(truth) @ fitted) < 0.06
