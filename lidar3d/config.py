@@ -588,6 +588,9 @@ class LoopConfig:
     icp_max_correspondence_m: tuple[float, ...] = _key(
         (4.0, 2.0, 1.0, 0.5), ListRange(_positive(100.0, "m"), 1, 20), "coarse-to-fine stage distances"
     )
+    icp_stage_voxel_share: float = _key(
+        0.5, _closed(0.0, 10.0), "each stage's query cloud at this share of its distance as voxel (>= voxel_m)"
+    )
     icp_max_iterations: int = _key(30, _closed(1, 10000), "ICP iterations per stage")
     icp_neighbours: int = _key(
         20, _closed(5, 1000), "nearest neighbours behind each GICP covariance and point-to-plane target normal"

@@ -111,6 +111,38 @@ def test_verification_recovers_the_offset_between_two_keyframes(method):
     assert result.correction_m == pytest.approx(np.linalg.norm(offset[:3, 3]), abs=0.01)
 
 
+def test_each_stage_registers_a_query_cloud_as_coarse_as_its_distance(monkeypatch):
+    """Stage ``d`` sees the query at ``icp_stage_voxel_share * d`` voxels (never finer than
+    ``voxel_m``); the last stage and the convergence check see the full cloud; a guess 10 m and 8°
+    off along the street still lands on the revisit."""
+    import small_gicp
+
+    seen: list[tuple[float, int]] = []
+    align = small_gicp.align
+
+    def spy(target, source, *args, **kwargs):
+        seen.append((kwargs["max_correspondence_distance"], source.size()))
+        return align(target, source, *args, **kwargs)
+
+    monkeypatch.setattr(small_gicp, "align", spy)
+    gt = _sim().ground_truth.T_world_lidar
+    query_scan, match_scan = 660, 14
+    target = _first_pass_target(match_scan)
+    T_true = invert(gt[match_scan]) @ gt[query_scan]
+    drift = exp_se3(np.array([10.0, 2.0, 0.2, 0.0, 0.0, np.radians(8.0)]))
+    result = verify_loop(_cloud(query_scan), target, T_true @ drift, CONFIG, max_correction_m=20.0)
+    error = invert(T_true) @ result.T_match_query
+    assert result.verdict is Verdict.ACCEPTED, result.reason
+    assert np.linalg.norm(error[:3, 3]) < 0.03 and _angle_deg(error[:3, :3]) < 0.1
+    base = voxel_downsample(_cloud(query_scan), CONFIG.voxel_m)
+    distances = list(CONFIG.icp_max_correspondence_m) + [CONFIG.icp_max_correspondence_m[-1]]
+    assert [d for d, _ in seen] == distances
+    for distance, size in seen:
+        voxel = CONFIG.icp_stage_voxel_share * distance
+        assert size == (len(voxel_downsample(base, voxel)) if voxel > CONFIG.voxel_m else len(base))
+    assert seen[0][1] < len(base) / 4
+
+
 def test_correspondences_follow_open3d_definitions_against_ckdtree():
     rng = np.random.default_rng(7)
     target = rng.uniform(-10, 10, (2000, 3))

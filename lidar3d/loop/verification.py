@@ -13,6 +13,13 @@ their users asked for, see ``shared/reference/lego-loam-and-peers.md`` §3 row 5
    one thread), started from the current estimate ``T_match_query = inv(T_world_match) @
    T_world_query`` and run through a coarse-to-fine schedule of maximum correspondence distances
    (default 4, 2, 1, 0.5 m) so that 1-2 m of drift still falls inside the first basin.
+   The query cloud is coarse-to-fine too: a stage reaching ``d`` metres registers it downsampled
+   at ``icp_stage_voxel_share * d`` (default 0.5: 2, 1, 0.5 and 0.4 m voxels), so the early
+   stages weigh the scene's large structure evenly instead of the dense returns near the sensor,
+   and a guess 14 m off along a street that drifted still converges to the revisit (measured on
+   `city_traffic` seed 2's revisit after the canyon, guesses 14 m off: all 26 registrations
+   ended within 0.2 m / 1° of the truth, against 10 of 26 with the 0.4 m cloud in every stage,
+   at 0.4x the CPU; docs/stages/loop-closure.md).
    Each point's local shape comes from its ``icp_neighbours`` nearest neighbours (small_gicp
    searches k-nearest only and takes no normals from outside): for GICP the plane-like covariance
    ``V diag(1e-3, 1, 1) Vᵀ`` of both clouds (``V`` the eigenvectors of the neighbourhood's
@@ -303,7 +310,6 @@ def verify_loop(
     method = config.icp_method
     if method not in _REGISTRATION_TYPES:
         raise ValueError(f"unknown icp_method {method!r} (known: {', '.join(_REGISTRATION_TYPES)})")
-    source_cloud = small_gicp.PointCloud(source)
     target_cloud = small_gicp.PointCloud(target)
     target_tree = small_gicp.KdTree(target_cloud)
     # Local shape from the k nearest neighbours (small_gicp has no radius search and no way to hand
@@ -311,14 +317,29 @@ def verify_loop(
     # GICP builds them from its normals; point-to-plane's target normals.
     if method == "gicp":
         small_gicp.estimate_covariances(target_cloud, target_tree, num_neighbors=config.icp_neighbours)
-        small_gicp.estimate_covariances(source_cloud, num_neighbors=config.icp_neighbours)
     else:
         small_gicp.estimate_normals(target_cloud, target_tree, num_neighbors=config.icp_neighbours)
+    source_clouds: dict[float, object] = {}
+
+    def source_at(distance: float):
+        """The query cloud of a stage reaching ``distance``: downsampled at
+        ``icp_stage_voxel_share * distance`` (at least ``voxel_m``; the base cloud when that would
+        leave fewer than ``min_source_points``), with its GICP covariances."""
+        voxel = max(config.voxel_m, config.icp_stage_voxel_share * distance)
+        if voxel not in source_clouds:
+            points = source if voxel == config.voxel_m else voxel_downsample(source, voxel)
+            if len(points) < config.min_source_points:
+                return source_at(0.0)
+            cloud = small_gicp.PointCloud(points)
+            if method == "gicp":
+                small_gicp.estimate_covariances(cloud, num_neighbors=config.icp_neighbours)
+            source_clouds[voxel] = cloud
+        return source_clouds[voxel]
 
     def run(distance: float, T: np.ndarray):
         return small_gicp.align(
             target_cloud,
-            source_cloud,
+            source_at(distance),
             target_tree,
             init_T_target_source=T,
             registration_type=_REGISTRATION_TYPES[method],
