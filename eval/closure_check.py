@@ -43,6 +43,7 @@ __all__ = ["MAX_ERROR_DEG", "MAX_ERROR_M", "check_closures", "format_report", "l
 
 MAX_ERROR_M = 0.2  # issue 16's bound on the worst accepted closure ...
 MAX_ERROR_DEG = 1.0  # ... and its rotation
+SPAN_SLACK_S = 0.005  # keyframes this close outside the truth's span take its end pose (stamp jitter: 1 ms)
 TRUTH_NAMES = ("ground_truth_dense_tum.txt", "ground_truth_tum.txt")
 
 
@@ -138,7 +139,10 @@ def check_closures(run_dir: str | Path, truth: str | Path, sweep_s: float = 0.1)
     if any(max(a, b) >= len(keyframes) for a, b, _ in edges):
         raise Lidar3dError(f"{graph}: an edge names a keyframe beyond keyframes_tum.txt's {len(keyframes)}")
     stamps = keyframes.stamps_ns
-    if len(stamps) and (stamps[0] < reference.stamps_ns[0] or stamps[-1] > reference.stamps_ns[-1]):
+    slack_ns = int(SPAN_SLACK_S * 1e9)  # a jittered first stamp may fall just before the truth's first pose
+    if len(stamps) and (
+        stamps[0] < reference.stamps_ns[0] - slack_ns or stamps[-1] > reference.stamps_ns[-1] + slack_ns
+    ):
         raise Lidar3dError(f"{run_dir / 'keyframes_tum.txt'}: keyframes outside the truth's time span")
     true_poses = (
         interpolate_poses(reference.stamps_ns, reference.T_world_lidar, stamps) if len(stamps) else np.zeros((0, 4, 4))

@@ -80,6 +80,17 @@ def test_good_closures_meet_the_target_and_bad_folders_say_why(tmp_path, capsys)
     report = check_closures(run, truth)
     assert report["met"] and report["worst_m"] == pytest.approx(0.0, abs=1e-4)
     assert closure_check_main([str(run), str(truth)]) == 0
+    keyframes = (run / "keyframes_tum.txt").read_text().splitlines()
+    first = keyframes[1].split()
+    for shift_s, accepted in ((-0.001, True), (-0.05, False)):  # a jittered first stamp; one truly outside
+        shifted = [" ".join([f"{float(first[0]) + shift_s:.6f}", *first[1:]])]
+        (run / "keyframes_tum.txt").write_text("\n".join([keyframes[0], *shifted, *keyframes[2:]]) + "\n")
+        if accepted:
+            assert check_closures(run, truth)["met"]
+        else:
+            with pytest.raises(Lidar3dError, match="outside the truth's time span"):
+                check_closures(run, truth)
+    (run / "keyframes_tum.txt").write_text("\n".join(keyframes) + "\n")
     with pytest.raises(Lidar3dError, match=r"no pose_graph\.g2o"):
         check_closures(tmp_path, truth)
     lines = (run / "pose_graph.g2o").read_text().splitlines()
