@@ -198,7 +198,9 @@ def loop_information(
     return 0.5 * (information + information.T)
 
 
-def correspondences(aligned_source: np.ndarray, target: np.ndarray, max_distance_m: float) -> tuple[np.ndarray, float]:
+def correspondences(
+    aligned_source: np.ndarray, target: np.ndarray | PointTree, max_distance_m: float
+) -> tuple[np.ndarray, float]:
     """The source points with a target point closer than ``max_distance_m``, and their RMSE.
 
     Open3D's definitions (``GetRegistrationResultAndCorrespondences``): each source point is paired
@@ -207,14 +209,16 @@ def correspondences(aligned_source: np.ndarray, target: np.ndarray, max_distance
 
     Args:
         aligned_source: (N,3) source points already moved into the target's frame.
-        target: (M,3) target points, M >= 1.
+        target: (M,3) target points, M >= 1, or a :class:`PointTree` of them (built once for
+            several calls).
         max_distance_m: the correspondence distance (m).
 
     Returns:
         ``(indices, inlier_rmse_m)``: (K,) int64 rows of ``aligned_source`` that are paired, and the
         RMSE (m) of their distances.
     """
-    distance_m, _ = PointTree(target).query(aligned_source, distance_upper_bound=max_distance_m)
+    tree = target if isinstance(target, PointTree) else PointTree(target)
+    distance_m, _ = tree.query(aligned_source, distance_upper_bound=max_distance_m)
     paired = np.flatnonzero(np.isfinite(distance_m))
     if paired.size == 0:
         return paired, 0.0
@@ -321,25 +325,24 @@ def verify_loop(
         small_gicp.estimate_normals(target_cloud, target_tree, num_neighbors=config.icp_neighbours)
     source_clouds: dict[float, object] = {}
 
-    def source_at(distance: float):
-        """The query cloud of a stage reaching ``distance``: downsampled at
-        ``icp_stage_voxel_share * distance`` (at least ``voxel_m``; the base cloud when that would
-        leave fewer than ``min_source_points``), with its GICP covariances."""
-        voxel = max(config.voxel_m, config.icp_stage_voxel_share * distance)
+    def source_at(voxel: float):
+        """The query cloud at ``voxel`` (the base cloud at ``voxel_m`` or where a coarser one
+        would keep fewer than ``min_source_points``), with its GICP covariances."""
+        voxel = max(config.voxel_m, voxel)
         if voxel not in source_clouds:
             points = source if voxel == config.voxel_m else voxel_downsample(source, voxel)
             if len(points) < config.min_source_points:
-                return source_at(0.0)
+                return source_at(config.voxel_m)
             cloud = small_gicp.PointCloud(points)
             if method == "gicp":
                 small_gicp.estimate_covariances(cloud, num_neighbors=config.icp_neighbours)
             source_clouds[voxel] = cloud
         return source_clouds[voxel]
 
-    def run(distance: float, T: np.ndarray):
+    def run(distance: float, T: np.ndarray, voxel: float = 0.0):
         return small_gicp.align(
             target_cloud,
-            source_at(distance),
+            source_at(voxel),
             target_tree,
             init_T_target_source=T,
             registration_type=_REGISTRATION_TYPES[method],
@@ -349,24 +352,46 @@ def verify_loop(
             translation_epsilon=_EPSILON_M,
         )
 
-    T = T_guess.copy()
-    for distance in config.icp_max_correspondence_m:
-        result = run(float(distance), T)
-        if result.num_inliers < 3 or not np.isfinite(result.T_target_source).all():
-            return _rejected(
-                Verdict.NOT_CONVERGED,
-                f"ICP lost its correspondences at {distance:g} m",
-                T_guess,
-                n_source,
-                n_target,
-            )
-        T = nearest_rigid(np.array(result.T_target_source))
-    final_distance = float(config.icp_max_correspondence_m[-1])
+    def descend(distances: tuple[float, ...], share: float) -> tuple[np.ndarray | None, float]:
+        """The stages ``distances`` from the guess, each stage's query at ``share`` of its
+        distance as voxel: the result (None when a stage lost its correspondences) and its
+        fitness at the final distance on the full query cloud."""
+        T = T_guess.copy()
+        for distance in distances:
+            result = run(float(distance), T, share * float(distance))
+            if result.num_inliers < 3 or not np.isfinite(result.T_target_source).all():
+                return None, 0.0
+            T = nearest_rigid(np.array(result.T_target_source))
+        paired, _ = correspondences(transform_points(T, source), target_points, final_distance)
+        return T, paired.size / n_source
+
+    target_points = PointTree(target)
+    schedule = tuple(float(d) for d in config.icp_max_correspondence_m)
+    final_distance = schedule[-1]
+    found, found_fitness = descend(schedule, config.icp_stage_voxel_share)
+    if config.icp_stage_voxel_share > 0.0 and found_fitness < config.min_fitness:
+        # The coarse stages can leave the basin of a guess that was right where the query sees
+        # much the match did not (a keyframe entering the revisit): the guess's own basin, the
+        # stages reaching no farther than an unconfirmed correction may go, with the full cloud,
+        # gets its chance; the better fit counts.
+        near = tuple(d for d in schedule if d <= config.max_correction_m) or schedule[-1:]
+        fine, fine_fitness = descend(near, 0.0)
+        if fine_fitness > found_fitness:
+            found, found_fitness = fine, fine_fitness
+    if found is None:
+        return _rejected(
+            Verdict.NOT_CONVERGED,
+            f"ICP lost its correspondences (fewer than 3 within {final_distance:g} m or more)",
+            T_guess,
+            n_source,
+            n_target,
+        )
+    T = found
     check = run(final_distance, T)
     moved_m, moved_deg = pose_change(T, np.array(check.T_target_source))
     correction_m, correction_deg = pose_change(T_guess, T)
     aligned = transform_points(T, source)
-    matched_source, rmse = correspondences(aligned, target, final_distance)
+    matched_source, rmse = correspondences(aligned, target_points, final_distance)
     fitness = matched_source.size / n_source
     overlap = voxel_overlap(aligned, target, config.overlap_voxel_m)
     metrics = {
