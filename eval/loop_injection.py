@@ -14,7 +14,7 @@ configuration otherwise:
 
 The ATE (SE(3)-aligned, against the simulator's ground truth) of both runs and their difference are
 printed and written to ``--out`` as JSON. The injection wraps the verification of one
-:class:`~lidar3d.loop.closer.LoopCloser` subclass instance; nothing in ``lidar3d`` changes.
+:class:`Injector` standing in for ``lidar3d.loop.closer._verify`` during the run; nothing in ``lidar3d`` changes.
 
 Usage (from the repository root)::
 
@@ -38,28 +38,29 @@ if str(HERE.parent) not in sys.path:
 from lidar3d.config import Config  # noqa: E402
 from lidar3d.io.scan_source import open_scan_source  # noqa: E402
 from lidar3d.io.trajectory_io import read_tum  # noqa: E402
-from lidar3d.loop.closer import LoopCloser  # noqa: E402
+from lidar3d.loop import closer as closer_module  # noqa: E402
 from lidar3d.loop.records import LoopCandidate  # noqa: E402
 from lidar3d.metrics.evaluation import evaluate_trajectory  # noqa: E402
 from lidar3d.pipeline import SlamPipeline  # noqa: E402
 
-__all__ = ["InjectingLoopCloser", "main", "run_drive"]
+__all__ = ["Injector", "main", "run_drive"]
 
 OFFSET_RANGE_M = (2.0, 20.0)
 
 
-class InjectingLoopCloser(LoopCloser):
-    """A loop closer whose accepted verifications number ``corrupt`` (0-based, in acceptance order)
-    come out with ``T_match_query`` shifted by the matching horizontal offset of ``offsets_m``."""
+class Injector:
+    """Stands in for the loop closer's verification (``lidar3d.loop.closer._verify``) during a run:
+    the accepted verifications number ``corrupt`` (0-based, in acceptance order) come out with
+    ``T_match_query`` shifted by the matching horizontal offset."""
 
-    def __init__(self, config, corrupt: dict[int, np.ndarray]) -> None:
-        super().__init__(config)
+    def __init__(self, corrupt: dict[int, np.ndarray]) -> None:
         self._corrupt = corrupt
+        self._verify = closer_module._verify
         self.n_verified_accepted = 0
         self.injected: list[tuple[int, int, float]] = []  # (query, match, offset length m)
 
-    def _verify(self, *args, **kwargs) -> LoopCandidate:
-        record = super()._verify(*args, **kwargs)
+    def __call__(self, *args, **kwargs) -> LoopCandidate:
+        record = self._verify(*args, **kwargs)
         if not record.accepted:
             return record
         number = self.n_verified_accepted
@@ -73,17 +74,21 @@ class InjectingLoopCloser(LoopCloser):
         return dataclasses.replace(record, T_match_query=T)
 
 
-def run_drive(bag: Path, corrupt: dict[int, np.ndarray]) -> tuple[object, InjectingLoopCloser]:
-    """Run the pipeline on ``bag`` with loop closure on; returns (result, its loop closer)."""
+def run_drive(bag: Path, corrupt: dict[int, np.ndarray]) -> tuple[object, Injector]:
+    """Run the pipeline on ``bag`` with loop closure on, its verifications passed through an
+    :class:`Injector` of ``corrupt``; returns (result, the injector)."""
     config = Config()
-    pipeline = SlamPipeline(config)
-    closer = InjectingLoopCloser(config.loop, corrupt)
-    pipeline.loop = closer
-    with open_scan_source(bag, config) as source:
-        for _, scan in source.scans():
-            pipeline.process(scan)
-    pipeline.finish()
-    return pipeline.result(), closer
+    injector = Injector(corrupt)
+    closer_module._verify = injector
+    try:
+        pipeline = SlamPipeline(config)
+        with open_scan_source(bag, config) as source:
+            for _, scan in source.scans():
+                pipeline.process(scan)
+        pipeline.finish()
+        return pipeline.result(), injector
+    finally:
+        closer_module._verify = injector._verify
 
 
 def _ate_m(result, truth) -> float:

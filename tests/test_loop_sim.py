@@ -331,3 +331,30 @@ def test_correct_scan_poses_is_exact_at_keyframes_and_interpolates_between():
     np.testing.assert_allclose(R @ np.swapaxes(R, 1, 2), np.broadcast_to(np.eye(3), R.shape), atol=1e-12)
     with pytest.raises(ValueError, match="strictly increasing"):
         correct_scan_poses(stamps, scan_poses, stamps[[5, 1, 8]], old, new)
+
+
+def test_the_injection_harness_sees_and_corrupts_the_closers_verifications(monkeypatch):
+    """eval/loop_injection.py stands in for the closer's verification: on the drifting loop its
+    injector counts the accepted verifications and shifts the chosen one (it once counted none
+    and reported "no closure to corrupt" for every drive, after the verification moved)."""
+    import sys
+    from pathlib import Path
+
+    import lidar3d.loop.closer as closer_module
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "eval"))
+    from loop_injection import Injector
+
+    offset = np.array([5.0, 0.0, 0.0])
+    injector = Injector({0: offset})
+    monkeypatch.setattr(closer_module, "_verify", injector)
+    keyframes, raw, truth = _drifting_keyframes()
+    closer = LoopCloser(CONFIG)
+    for k in range(len(keyframes)):
+        closer.on_keyframe(keyframes[: k + 1], raw[: k + 1])
+    assert injector.n_verified_accepted >= 1
+    (query, match, length), *_ = injector.injected
+    assert length == pytest.approx(5.0)
+    first = next(c for c in closer.candidates if (c.query, c.match) == (query, match))
+    T_true = invert(truth[match]) @ truth[query]
+    assert np.linalg.norm(first.T_match_query[:3, 3] - T_true[:3, 3]) > 4.0  # the closer saw the shifted one
