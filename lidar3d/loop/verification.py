@@ -19,7 +19,11 @@ their users asked for, see ``shared/reference/lego-loam-and-peers.md`` §3 row 5
    and a guess 14 m off along a street that drifted still converges to the revisit (measured on
    `city_traffic` seed 2's revisit after the canyon, guesses 14 m off: all 26 registrations
    ended within 0.2 m / 1° of the truth, against 10 of 26 with the 0.4 m cloud in every stage,
-   at 0.4x the CPU; docs/stages/loop-closure.md).
+   at 0.4x the CPU; docs/stages/loop-closure.md). Where that descent ends below the fitness
+   gate, the guess's own basin is tried as well: the stages reaching no farther than
+   ``max_correction_m`` from the guess, with the full cloud; the better fit counts (a keyframe
+   entering a revisit, whose cloud is half new, can slide out of a right guess's basin in the
+   coarse stages: 2.7 m on held-out `hilly_fast` seed 10).
    Each point's local shape comes from its ``icp_neighbours`` nearest neighbours (small_gicp
    searches k-nearest only and takes no normals from outside): for GICP the plane-like covariance
    ``V diag(1e-3, 1, 1) Vᵀ`` of both clouds (``V`` the eigenvectors of the neighbourhood's
@@ -362,10 +366,10 @@ def verify_loop(
             if result.num_inliers < 3 or not np.isfinite(result.T_target_source).all():
                 return None, 0.0
             T = nearest_rigid(np.array(result.T_target_source))
-        paired, _ = correspondences(transform_points(T, source), target_points, final_distance)
+        paired, _ = correspondences(transform_points(T, source), fitness_tree, final_distance)
         return T, paired.size / n_source
 
-    target_points = PointTree(target)
+    fitness_tree = PointTree(target)  # the gates' own nearest neighbours, built once
     schedule = tuple(float(d) for d in config.icp_max_correspondence_m)
     final_distance = schedule[-1]
     found, found_fitness = descend(schedule, config.icp_stage_voxel_share)
@@ -391,7 +395,7 @@ def verify_loop(
     moved_m, moved_deg = pose_change(T, np.array(check.T_target_source))
     correction_m, correction_deg = pose_change(T_guess, T)
     aligned = transform_points(T, source)
-    matched_source, rmse = correspondences(aligned, target_points, final_distance)
+    matched_source, rmse = correspondences(aligned, fitness_tree, final_distance)
     fitness = matched_source.size / n_source
     overlap = voxel_overlap(aligned, target, config.overlap_voxel_m)
     metrics = {
