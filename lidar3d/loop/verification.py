@@ -19,7 +19,7 @@ their users asked for, see ``shared/reference/lego-loam-and-peers.md`` §3 row 5
    and a guess 14 m off along a street that drifted still converges to the revisit (measured on
    `city_traffic` seed 2's revisit after the canyon, guesses 14 m off: all 26 registrations
    ended within 0.2 m / 1° of the truth, against 10 of 26 with the 0.4 m cloud in every stage,
-   at 0.4x the CPU; docs/stages/loop-closure.md). Where that descent ends below the fitness
+   at 0.6x the CPU; docs/stages/loop-closure.md). Where that descent ends below the fitness
    gate, the guess's own basin is tried as well: the stages reaching no farther than
    ``max_correction_m`` from the guess, with the full cloud; the better fit counts (a keyframe
    entering a revisit, whose cloud is half new, can slide out of a right guess's basin in the
