@@ -84,10 +84,6 @@ def _truth_path(truth: Path) -> Path:
     raise Lidar3dError(f"{truth}: no {' or '.join(TRUTH_NAMES)} in this folder")
 
 
-def _angle_deg(T: np.ndarray) -> float:
-    return float(np.degrees(np.arccos(np.clip((np.trace(T[:3, :3]) - 1.0) / 2.0, -1.0, 1.0))))
-
-
 def sweep_fitted_poses(reference, stamps_ns: np.ndarray, sweep_s: float, samples: int = 11) -> np.ndarray:
     """(K,4,4) the true pose at each stamp as one sweep can show it: the constant-twist motion
     that best fits (least squares, rotation vector and translation linear in time) the true poses
@@ -128,6 +124,7 @@ def check_closures(run_dir: str | Path, truth: str | Path, sweep_s: float = 0.1)
     """
     from lidar3d.io.trajectory_io import read_tum
     from lidar3d.mapping.se3 import interpolate_poses, invert
+    from lidar3d.metrics.ate import rotation_angle_deg
 
     run_dir = Path(run_dir)
     graph = run_dir / "pose_graph.g2o"
@@ -157,9 +154,9 @@ def check_closures(run_dir: str | Path, truth: str | Path, sweep_s: float = 0.1)
                 "match": source,
                 "query": target,
                 "error_m": float(np.linalg.norm(error[:3, 3])),
-                "error_deg": _angle_deg(error),
+                "error_deg": float(rotation_angle_deg(error[:3, :3])),
                 "sweep_error_m": float(np.linalg.norm(error_swept[:3, 3])),
-                "sweep_error_deg": _angle_deg(error_swept),
+                "sweep_error_deg": float(rotation_angle_deg(error_swept[:3, :3])),
             }
         )
     worst_m = max((e["error_m"] for e in scored), default=None)

@@ -356,32 +356,32 @@ def verify_loop(
             translation_epsilon=_EPSILON_M,
         )
 
-    def descend(distances: tuple[float, ...], share: float) -> tuple[np.ndarray | None, float]:
+    def descend(distances: tuple[float, ...], share: float) -> tuple[np.ndarray | None, np.ndarray, float]:
         """The stages ``distances`` from the guess, each stage's query at ``share`` of its
-        distance as voxel: the result (None when a stage lost its correspondences) and its
-        fitness at the final distance on the full query cloud."""
+        distance as voxel: the result (None when a stage lost its correspondences), and the full
+        query cloud's points paired there at the final distance with their RMSE
+        (:func:`correspondences`)."""
         T = T_guess.copy()
         for distance in distances:
             result = run(float(distance), T, share * float(distance))
             if result.num_inliers < 3 or not np.isfinite(result.T_target_source).all():
-                return None, 0.0
+                return None, np.zeros(0, dtype=np.int64), 0.0
             T = nearest_rigid(np.array(result.T_target_source))
-        paired, _ = correspondences(transform_points(T, source), fitness_tree, final_distance)
-        return T, paired.size / n_source
+        return T, *correspondences(transform_points(T, source), fitness_tree, final_distance)
 
     fitness_tree = PointTree(target)  # the gates' own nearest neighbours, built once
     schedule = tuple(float(d) for d in config.icp_max_correspondence_m)
     final_distance = schedule[-1]
-    found, found_fitness = descend(schedule, config.icp_stage_voxel_share)
-    if config.icp_stage_voxel_share > 0.0 and found_fitness < config.min_fitness:
+    found, matched_source, rmse = descend(schedule, config.icp_stage_voxel_share)
+    if config.icp_stage_voxel_share > 0.0 and matched_source.size < config.min_fitness * n_source:
         # The coarse stages can leave the basin of a guess that was right where the query sees
         # much the match did not (a keyframe entering the revisit): the guess's own basin, the
         # stages reaching no farther than an unconfirmed correction may go, with the full cloud,
         # gets its chance; the better fit counts.
         near = tuple(d for d in schedule if d <= config.max_correction_m) or schedule[-1:]
-        fine, fine_fitness = descend(near, 0.0)
-        if fine_fitness > found_fitness:
-            found, found_fitness = fine, fine_fitness
+        fine, fine_matched, fine_rmse = descend(near, 0.0)
+        if fine_matched.size > matched_source.size:
+            found, matched_source, rmse = fine, fine_matched, fine_rmse
     if found is None:
         return _rejected(
             Verdict.NOT_CONVERGED,
@@ -395,7 +395,6 @@ def verify_loop(
     moved_m, moved_deg = pose_change(T, np.array(check.T_target_source))
     correction_m, correction_deg = pose_change(T_guess, T)
     aligned = transform_points(T, source)
-    matched_source, rmse = correspondences(aligned, fitness_tree, final_distance)
     fitness = matched_source.size / n_source
     overlap = voxel_overlap(aligned, target, config.overlap_voxel_m)
     metrics = {
