@@ -65,9 +65,10 @@ demo: $(STAMP)
 	@bash scripts/ensure_system_deps.sh "$(PYTHON)"
 	$(VENV)/bin/lidar3d demo --out $(DEMO_OUT)
 
-# The peers and the profiler are the optional `eval` extra, installed only for the benchmark.
-$(EVAL_STAMP): pyproject.toml $(STAMP)
-	$(PY) -m pip install --quiet -e ".[eval]"
+# The peers and the profiler are the optional `eval` extra, installed only for the benchmark, with the
+# numeric stack held to the versions the published figures were measured with (eval/constraints.txt).
+$(EVAL_STAMP): pyproject.toml eval/constraints.txt $(STAMP)
+	$(PY) -m pip install --quiet -c eval/constraints.txt -e ".[eval]"
 	@touch $(EVAL_STAMP)
 
 bench: $(STAMP) $(EVAL_STAMP)

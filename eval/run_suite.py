@@ -45,7 +45,7 @@ for entry in (str(REPO), str(HERE)):
 
 from closure_check import check_closures  # noqa: E402
 from health_check import check_health  # noqa: E402
-from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: E402
+from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario, installed_versions  # noqa: E402
 from suite_metrics import loop_closures, score_trajectory  # noqa: E402
 from suite_peers import PEERS, peer_version  # noqa: E402
 from suite_report import METHOD_NAMES, render_markdown  # noqa: E402
@@ -56,6 +56,9 @@ SCENARIOS = ("loop", "long", "hilly", "fast", "stops", "blind_turn", "figure_eig
 DEFAULT_RESULTS = REPO / "eval" / "results"
 DEFAULT_BENCHMARKS = REPO / "BENCHMARKS.md"
 QUICK_COMMAND = ".venv/bin/python eval/run_suite.py --duration 20"
+# The numeric stack behind lidar3d's figures, recorded in every results header (`make bench` installs
+# the versions of eval/constraints.txt).
+LIBRARIES = ("numpy", "scipy", "numba", "pykdtree", "small_gicp", "gtsam", "open3d", "rosbags")
 
 
 def _log(message: str) -> None:
@@ -365,6 +368,7 @@ def run_suite(args: argparse.Namespace) -> int:
         "commit": _commit(),
         "python": platform.python_version(),
         "peer_versions": peer_versions,
+        "library_versions": installed_versions(LIBRARIES),
         "seeds": args.seeds,
         "durations_text": durations_text,
         "jobs": args.jobs,

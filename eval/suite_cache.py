@@ -14,6 +14,7 @@ lidar3d version and a hash of the simulator's sources. Anything else regenerates
 from __future__ import annotations
 
 import hashlib
+import importlib.metadata
 import json
 import shutil
 from dataclasses import dataclass
@@ -29,6 +30,9 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_CACHE = REPO / "eval" / "cache"
 DENSE_GT_NAME = "ground_truth_dense_tum.txt"
 DENSE_GT_PERIOD_NS = 10_000_000
+# What the simulator computes with (ray casting, noise, foliage): a bag is simulated again when one of
+# them changes, since the same sources and seed then give other points (forest_trail did, 2026-12-07).
+SIMULATOR_LIBRARIES = ("numpy", "scipy", "open3d")
 KEY_NAME = "cache_key.json"
 
 __all__ = ["DEFAULT_CACHE", "CachedScenario", "cache_folder_name", "ensure_scenario"]
@@ -71,6 +75,17 @@ class CachedScenario:
         return len(self.metadata.get("revisits", []))
 
 
+def installed_versions(names: tuple[str, ...]) -> dict[str, str]:
+    """``{distribution: version}`` of the installed distributions (``"not installed"`` if absent)."""
+    versions = {}
+    for name in names:
+        try:
+            versions[name] = importlib.metadata.version(name)
+        except importlib.metadata.PackageNotFoundError:
+            versions[name] = "not installed"
+    return versions
+
+
 def _simulator_fingerprint() -> str:
     digest = hashlib.sha256()
     sim_dir = REPO / "lidar3d" / "sim"
@@ -99,6 +114,7 @@ def _key(scenario: str | Scenario, seed: int, duration_s: float | None) -> dict:
         "sensor": "vlp16",
         "lidar3d_version": __version__,
         "simulator_sources": _simulator_fingerprint(),
+        "simulator_libraries": installed_versions(SIMULATOR_LIBRARIES),
     }
 
 

@@ -438,6 +438,11 @@ def header_lines(header: dict) -> list[str]:
         f"* lidar3d {header['lidar3d_version']} at commit {header['commit']}; Python {header['python']}; "
         + "; ".join(f"{k} {v}" for k, v in header["peer_versions"].items())
         + ".",
+        *(
+            ["* Libraries: " + ", ".join(f"{k} {v}" for k, v in header["library_versions"].items()) + "."]
+            if "library_versions" in header
+            else []
+        ),
         f"* Data: simulated VLP-16 drives (`lidar3d.sim`), seed(s) {', '.join(map(str, header['seeds']))}; "
         f"{header['durations_text']}.",
         f"* Runs: one process per (scenario, method), {header['jobs']} at a time; peak RSS is that process's "

@@ -45,3 +45,20 @@ def test_the_cache_is_keyed_by_the_whole_definition(tmp_path):
     again = suite_cache.ensure_scenario(changed, 10, duration_s=0.3, cache_dir=tmp_path)
     assert again.generated
     assert "7.5" in json.loads((again.folder / suite_cache.KEY_NAME).read_text())["definition"]
+
+
+def test_a_bag_is_simulated_again_when_a_library_of_the_simulator_changes(tmp_path, monkeypatch):
+    """The same sources and seed give other points with another numpy or open3d (forest_trail's foliage
+    did): the cache holds the versions and does not serve a bag made with others."""
+    first = suite_cache.ensure_scenario("loop", 0, duration_s=0.3, cache_dir=tmp_path)
+    key = json.loads((first.folder / suite_cache.KEY_NAME).read_text())
+    assert set(key["simulator_libraries"]) == set(suite_cache.SIMULATOR_LIBRARIES)
+    assert not suite_cache.ensure_scenario("loop", 0, duration_s=0.3, cache_dir=tmp_path).generated
+    installed = suite_cache.installed_versions
+    monkeypatch.setattr(
+        suite_cache, "installed_versions", lambda names: {**installed(names), "open3d": "0.0.0-other"}
+    )
+    again = suite_cache.ensure_scenario("loop", 0, duration_s=0.3, cache_dir=tmp_path)
+    assert again.generated
+    libraries = json.loads((again.folder / suite_cache.KEY_NAME).read_text())["simulator_libraries"]
+    assert libraries["open3d"] == "0.0.0-other"
