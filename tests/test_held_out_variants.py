@@ -55,9 +55,7 @@ def test_a_bag_is_simulated_again_when_a_library_of_the_simulator_changes(tmp_pa
     assert set(key["simulator_libraries"]) == set(suite_cache.SIMULATOR_LIBRARIES)
     assert not suite_cache.ensure_scenario("loop", 0, duration_s=0.3, cache_dir=tmp_path).generated
     installed = suite_cache.installed_versions
-    monkeypatch.setattr(
-        suite_cache, "installed_versions", lambda names: {**installed(names), "open3d": "0.0.0-other"}
-    )
+    monkeypatch.setattr(suite_cache, "installed_versions", lambda names: {**installed(names), "open3d": "0.0.0-other"})
     again = suite_cache.ensure_scenario("loop", 0, duration_s=0.3, cache_dir=tmp_path)
     assert again.generated
     libraries = json.loads((again.folder / suite_cache.KEY_NAME).read_text())["simulator_libraries"]
