@@ -112,11 +112,12 @@ def run_worker(
     timeout_s: float | None,
     loop_closure: bool = True,
     max_scans: int | None = None,
+    start: int = 0,
 ) -> dict:
     """Run ``suite_worker.py`` for one method (on the first ``max_scans`` scans of the bag when
-    given); returns its ``run.json`` plus exit status, wall time of the whole process, its own peak
-    RSS and the peak RSS of its process tree (:func:`tree_rss_kib`, sampled every
-    ``TREE_SAMPLE_S``)."""
+    given; lidar3d from scan ``start``); returns its ``run.json`` plus exit status, wall time of
+    the whole process, its own peak RSS and the peak RSS of its process tree (:func:`tree_rss_kib`,
+    sampled every ``TREE_SAMPLE_S``)."""
     out_dir.mkdir(parents=True, exist_ok=True)
     command = [
         sys.executable,
@@ -134,6 +135,8 @@ def run_worker(
         command.append("--no-loop")
     if max_scans is not None:
         command += ["--max-scans", str(max_scans)]
+    if start:
+        command += ["--start", str(start)]
     env = dict(os.environ, PYTHONWARNINGS="ignore")
     log_path = out_dir / "worker.log"
     t0 = time.perf_counter()

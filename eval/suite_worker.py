@@ -66,7 +66,7 @@ def _stage_stats(samples_ms: dict[str, np.ndarray]) -> dict[str, dict[str, float
     return out
 
 
-def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool = True) -> dict:
+def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool = True, start: int = 0) -> dict:
     import dataclasses
 
     from lidar3d.config import Config
@@ -76,7 +76,7 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool 
     config = Config()
     if not loop_closure:
         config = dataclasses.replace(config, loop=dataclasses.replace(config.loop, enabled=False))
-    outcome = run_bag(bag, out, max_scans=max_scans, config=config, overwrite=True)
+    outcome = run_bag(bag, out, start=start, max_scans=max_scans, config=config, overwrite=True)
     summary = outcome.summary
     timings = {k: np.asarray(v) for k, v in outcome.result.timings_ms.items()}
     front_end = [timings[name] for name in FRONT_END_STAGES if name in timings]
@@ -96,7 +96,10 @@ def run_lidar3d(bag: Path, out: Path, max_scans: int | None, loop_closure: bool 
         "warnings": list(summary.warnings),
         "health": summary.health.as_dict() if summary.health is not None else None,
         "pose_instant": "header stamp (sweep start)",
-        "settings": {"config": "lidar3d defaults (see config.toml)" + ("" if loop_closure else ", loop closure off")},
+        "settings": {
+            "config": "lidar3d defaults (see config.toml)" + ("" if loop_closure else ", loop closure off"),
+            "start": start,
+        },
     }
 
 
@@ -132,6 +135,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-scans", type=int, default=None)
     parser.add_argument("--genz-no-deskew", action="store_true", help="run GenZ-ICP with its preset's deskew off")
     parser.add_argument("--no-loop", action="store_true", help="run lidar3d with loop closure off")
+    parser.add_argument("--start", type=int, default=0, help="lidar3d skips the bag's first N scans")
     args = parser.parse_args(argv)
 
     import logging
@@ -140,7 +144,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     if args.method == "lidar3d":
-        record = run_lidar3d(args.bag, args.out, args.max_scans, loop_closure=not args.no_loop)
+        record = run_lidar3d(args.bag, args.out, args.max_scans, loop_closure=not args.no_loop, start=args.start)
     else:
         record = run_peer_method(args.method, args.bag, args.out, args.max_scans, not args.genz_no_deskew)
     record["process_s"] = round(time.perf_counter() - t0, 3)
