@@ -35,7 +35,7 @@ for entry in (str(REPO), str(HERE)):
     if entry not in sys.path:
         sys.path.insert(0, entry)
 
-from run_suite import evaluate_run, run_worker  # noqa: E402
+from run_suite import run_scored  # noqa: E402
 from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: E402
 from suite_peers import PEERS  # noqa: E402
 from suite_report import fmt_num, fmt_percent  # noqa: E402
@@ -122,10 +122,7 @@ def variant_scenario(name: str) -> Scenario:
 
 
 def _run_drive(case: CachedScenario, method: str, out_dir: Path, loop_closure: bool) -> dict:
-    record = run_worker(method, case, out_dir, genz_deskew=True, timeout_s=3600.0, loop_closure=loop_closure)
-    if record["status"] == "ok":
-        evaluate_run(record, case, out_dir, method)
-    return record
+    return run_scored(method, case, out_dir, genz_deskew=True, timeout_s=3600.0, loop_closure=loop_closure)
 
 
 def _row(variant: str, seed: int, records: dict[str, dict]) -> str:

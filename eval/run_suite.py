@@ -36,6 +36,7 @@ import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parent
@@ -45,9 +46,9 @@ for entry in (str(REPO), str(HERE)):
 
 from closure_check import check_closures  # noqa: E402
 from health_check import check_health  # noqa: E402
-from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario, installed_versions  # noqa: E402
+from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario, installed_version, installed_versions  # noqa: E402
 from suite_metrics import loop_closures, score_trajectory  # noqa: E402
-from suite_peers import PEERS, peer_version  # noqa: E402
+from suite_peers import PEERS  # noqa: E402
 from suite_report import METHOD_NAMES, render_markdown  # noqa: E402
 
 from lidar3d.errors import Lidar3dError  # noqa: E402
@@ -180,6 +181,20 @@ def run_worker(
     return record
 
 
+def run_scored(method: str, case: CachedScenario, out_dir: Path, **worker_options: Any) -> dict:
+    """:func:`run_worker` with ``worker_options``, then its run scored in place
+    (:func:`evaluate_run`); a scoring failure marks the record failed instead of raising, so it is
+    reported in the table and never hides the other runs."""
+    record = run_worker(method, case, out_dir, **worker_options)
+    if record["status"] == "ok":
+        try:
+            evaluate_run(record, case, out_dir, method)
+        except Exception as err:
+            record["status"] = "failed"
+            record["error"] = f"evaluation: {type(err).__name__}: {err}"
+    return record
+
+
 def evaluate_run(record: dict, case: CachedScenario, out_dir: Path, method: str) -> None:
     """Score a finished run in ``record`` (its trajectory against the truth and the SPAN log; lidar3d's
     health flags too), in place."""
@@ -270,7 +285,7 @@ def run_suite(args: argparse.Namespace) -> int:
     skipped: list[str] = []
     if not args.no_peers:
         for peer in args.peers:
-            if peer_version(peer) is None:
+            if installed_version(peer) is None:
                 skipped.append(f"{METHOD_NAMES[peer]} is not installed (pip install -e '.[eval]')")
             else:
                 methods.append(peer)
@@ -298,7 +313,7 @@ def run_suite(args: argparse.Namespace) -> int:
         case, method = task
         out_dir = run_dir / f"{case.scenario}_s{case.seed}" / method
         _log(f"{case.label}: {METHOD_NAMES[method]} running")
-        record = run_worker(
+        record = run_scored(
             method,
             case,
             out_dir,
@@ -307,12 +322,6 @@ def run_suite(args: argparse.Namespace) -> int:
             loop_closure=not args.no_loop,
             max_scans=args.max_scans,
         )
-        if record["status"] == "ok":
-            try:
-                evaluate_run(record, case, out_dir, method)
-            except Exception as err:  # a scoring failure is reported in the table, never hides other runs
-                record["status"] = "failed"
-                record["error"] = f"evaluation: {type(err).__name__}: {err}"
         record.update(
             scenario=case.scenario,
             seed=case.seed,
@@ -355,7 +364,7 @@ def run_suite(args: argparse.Namespace) -> int:
     )
     if args.max_scans is not None:
         durations_text += f"; **every method ran on the first {args.max_scans} scans of each bag only**"
-    peer_versions = {METHOD_NAMES[p]: (peer_version(p) or "not installed") for p in PEERS}
+    peer_versions = {METHOD_NAMES[p]: (installed_version(p) or "not installed") for p in PEERS}
     n_cpus = os.cpu_count() or 1
     header = {
         "command": args.command_text,

@@ -35,20 +35,10 @@ for entry in (str(REPO), str(HERE)):
     if entry not in sys.path:
         sys.path.insert(0, entry)
 
-from run_suite import SCENARIOS, evaluate_run, run_worker  # noqa: E402
-from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: E402
+from run_suite import SCENARIOS, run_scored  # noqa: E402
+from suite_cache import DEFAULT_CACHE, ensure_scenario  # noqa: E402
 
 DEFAULT_RESULTS = REPO / "eval" / "results"
-
-
-def _run(case: CachedScenario, start: int, out_dir: Path, loop_closure: bool) -> dict:
-    """lidar3d on ``case`` from scan ``start``: the worker's record, scored against the truth."""
-    record = run_worker(
-        "lidar3d", case, out_dir, genz_deskew=True, timeout_s=None, loop_closure=loop_closure, start=start
-    )
-    if record["status"] == "ok":
-        evaluate_run(record, case, out_dir, "lidar3d")
-    return record
 
 
 def drive_figures(records: dict[int, dict]) -> dict:
@@ -115,7 +105,15 @@ def main(argv: list[str] | None = None) -> int:
     def work(task: tuple[str, int]) -> dict:
         drive, start = task
         print(f"{drive} start {start}: lidar3d", file=sys.stderr, flush=True)
-        return _run(cases[drive], start, out / drive / f"start{start}", not args.no_loop)
+        return run_scored(
+            "lidar3d",
+            cases[drive],
+            out / drive / f"start{start}",
+            genz_deskew=True,
+            timeout_s=None,
+            loop_closure=not args.no_loop,
+            start=start,
+        )
 
     with ThreadPoolExecutor(max_workers=args.jobs) as pool:
         records = dict(zip(tasks, pool.map(work, tasks)))

@@ -75,15 +75,17 @@ class CachedScenario:
         return len(self.metadata.get("revisits", []))
 
 
+def installed_version(name: str) -> str | None:
+    """Installed version of the distribution ``name``, or None."""
+    try:
+        return importlib.metadata.version(name)
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
 def installed_versions(names: tuple[str, ...]) -> dict[str, str]:
     """``{distribution: version}`` of the installed distributions (``"not installed"`` if absent)."""
-    versions = {}
-    for name in names:
-        try:
-            versions[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            versions[name] = "not installed"
-    return versions
+    return {name: installed_version(name) or "not installed" for name in names}
 
 
 def _simulator_fingerprint() -> str:

@@ -23,7 +23,6 @@ at the instant its own poses describe.
 
 from __future__ import annotations
 
-import importlib.metadata
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -31,6 +30,7 @@ from pathlib import Path
 from typing import Protocol
 
 import numpy as np
+from suite_cache import installed_version
 
 __all__ = [
     "PEERS",
@@ -38,7 +38,6 @@ __all__ = [
     "PeerUnavailable",
     "deskew_reference_fraction",
     "normalised_times",
-    "peer_available",
     "run_peer",
 ]
 
@@ -77,19 +76,6 @@ class PeerRun:
     wall_s: float
     reference_fraction: float
     settings: dict = field(default_factory=dict)
-
-
-def peer_version(name: str) -> str | None:
-    """Installed version of a peer's distribution, or None."""
-    try:
-        return importlib.metadata.version(name)
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
-def peer_available(name: str) -> bool:
-    """Whether the peer's package is installed."""
-    return peer_version(name) is not None
 
 
 def normalised_times(time_offset_s: np.ndarray) -> np.ndarray:
@@ -154,7 +140,7 @@ class _KissIcp:
         probe = get_preprocessor(config)
         self.reference_fraction = deskew_reference_fraction(probe.preprocess)
         self.settings = {
-            "version": peer_version("kiss-icp"),
+            "version": installed_version("kiss-icp"),
             "config": config.model_dump(),
             "preset": "library defaults",
         }
@@ -184,7 +170,7 @@ class _GenzIcp:
 
         self.reference_fraction = deskew_reference_fraction(preprocess)
         self.settings = {
-            "version": peer_version("genz-icp"),
+            "version": installed_version("genz-icp"),
             "config": config.model_dump(),
             "preset": preset,
             "deskew": bool(deskew),
