@@ -17,6 +17,10 @@ stretch (local drift), the health flags against the truth, and the best peer's A
     .venv/bin/python eval/held_out.py                                  # every variant, seeds 10 11
     .venv/bin/python eval/held_out.py --variants f8_var --seeds 10 --no-peers
     .venv/bin/python eval/held_out.py --no-loop                         # loop closure off
+
+``results.json`` and ``held_out.md`` are written again after every run that finishes (the table
+marked partial until the last), each run's scored record is saved beside its outputs, and
+``--resume`` with the same ``--out`` finishes an interrupted run without repeating what finished.
 """
 
 from __future__ import annotations
@@ -26,7 +30,7 @@ import dataclasses
 import json
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -40,6 +44,7 @@ from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: 
 from suite_peers import PEERS  # noqa: E402
 from suite_report import fmt_num, fmt_percent  # noqa: E402
 
+from lidar3d.io.atomic import write_text_atomic  # noqa: E402
 from lidar3d.sim.lidar import StampMode  # noqa: E402
 from lidar3d.sim.scenarios import SCENARIOS, Scenario  # noqa: E402
 
@@ -121,8 +126,10 @@ def variant_scenario(name: str) -> Scenario:
     )
 
 
-def _run_drive(case: CachedScenario, method: str, out_dir: Path, loop_closure: bool) -> dict:
-    return run_scored(method, case, out_dir, genz_deskew=True, timeout_s=3600.0, loop_closure=loop_closure)
+def _run_drive(case: CachedScenario, method: str, out_dir: Path, loop_closure: bool, resume: bool) -> dict:
+    return run_scored(
+        method, case, out_dir, genz_deskew=True, timeout_s=3600.0, loop_closure=loop_closure, resume=resume
+    )
 
 
 def _row(variant: str, seed: int, records: dict[str, dict]) -> str:
@@ -157,7 +164,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-loop", action="store_true", help="lidar3d with loop closure off")
     parser.add_argument("--jobs", type=int, default=1, help="runs at a time (timings are not compared here)")
     parser.add_argument("--out", type=Path, help="results folder (default eval/results/held_out_<UTC time>)")
+    parser.add_argument(
+        "--resume", action="store_true", help="runs that finished in --out with the same options are not run again"
+    )
     args = parser.parse_args(argv)
+    if args.resume and args.out is None:
+        parser.error("--resume needs the --out folder of the run to finish")
     out = args.out or DEFAULT_RESULTS / time.strftime("held_out_%Y%m%dT%H%M%SZ", time.gmtime())
     methods = ["lidar3d"] + ([] if args.no_peers else list(PEERS))
     cases = {
@@ -168,25 +180,41 @@ def main(argv: list[str] | None = None) -> int:
     def work(task: tuple[str, int, str]) -> dict:
         variant, seed, method = task
         print(f"{variant} seed {seed}: {method}", file=sys.stderr, flush=True)
-        return _run_drive(cases[(variant, seed)], method, out / f"{variant}_s{seed}" / method, not args.no_loop)
+        return _run_drive(
+            cases[(variant, seed)], method, out / f"{variant}_s{seed}" / method, not args.no_loop, args.resume
+        )
+
+    records: dict[tuple[str, int, str], dict] = {}
+
+    def publish(complete: bool) -> str:
+        """results.json (every run finished so far) and held_out.md (every drive whose methods all
+        finished), written after each run."""
+        out.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(
+            out / "results.json",
+            json.dumps({f"{v}_s{s}_{m}": r for (v, s, m), r in records.items()}, indent=1, default=str) + "\n",
+        )
+        note = "" if complete else f" **partial: {len(records)} of {len(tasks)} runs finished**"
+        lines = [
+            f"Held-out drives ({'loop closure off' if args.no_loop else 'loop closure on'}):{note}",
+            "",
+            "| variant | seed | ATE | max error | worst 10 m | best peer ATE "
+            "| health recall / false flags (bad scans) |",
+            "|---|---:|---:|---:|---:|---:|---|",
+        ]
+        for variant, seed in cases:
+            if all((variant, seed, m) in records for m in methods):
+                lines.append(_row(variant, seed, {m: records[(variant, seed, m)] for m in methods}))
+        lines += ["", *(f"* `{v}`: {VARIANTS[v][1]}" for v in args.variants)]
+        write_text_atomic(out / "held_out.md", "\n".join(lines) + "\n")
+        return "\n".join(lines)
 
     with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        records = dict(zip(tasks, pool.map(work, tasks)))
-    (out / "results.json").write_text(
-        json.dumps({f"{v}_s{s}_{m}": r for (v, s, m), r in records.items()}, indent=1, default=str) + "\n",
-        encoding="utf-8",
-    )
-    lines = [
-        f"Held-out drives ({'loop closure off' if args.no_loop else 'loop closure on'}):",
-        "",
-        "| variant | seed | ATE | max error | worst 10 m | best peer ATE | health recall / false flags (bad scans) |",
-        "|---|---:|---:|---:|---:|---:|---|",
-    ]
-    for variant, seed in cases:
-        lines.append(_row(variant, seed, {m: records[(variant, seed, m)] for m in methods}))
-    lines += ["", *(f"* `{v}`: {VARIANTS[v][1]}" for v in args.variants)]
-    (out / "held_out.md").write_text("\n".join(lines) + "\n", encoding="utf-8")
-    print("\n".join(lines))
+        futures = {pool.submit(work, task): task for task in tasks}
+        for future in as_completed(futures):
+            records[futures[future]] = future.result()
+            publish(complete=False)
+    print(publish(complete=True))
     return 0
 
 

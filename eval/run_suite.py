@@ -52,6 +52,7 @@ from suite_peers import PEERS  # noqa: E402
 from suite_report import METHOD_NAMES, render_markdown  # noqa: E402
 
 from lidar3d.errors import Lidar3dError  # noqa: E402
+from lidar3d.io.atomic import write_text_atomic  # noqa: E402
 
 SCENARIOS = ("loop", "long", "hilly", "fast", "stops", "blind_turn", "figure_eight", "city_traffic", "forest_trail")
 DEFAULT_RESULTS = REPO / "eval" / "results"
@@ -181,10 +182,23 @@ def run_worker(
     return record
 
 
-def run_scored(method: str, case: CachedScenario, out_dir: Path, **worker_options: Any) -> dict:
+RECORD_NAME = "record.json"
+
+
+def run_scored(
+    method: str, case: CachedScenario, out_dir: Path, *, resume: bool = False, **worker_options: Any
+) -> dict:
     """:func:`run_worker` with ``worker_options``, then its run scored in place
     (:func:`evaluate_run`); a scoring failure marks the record failed instead of raising, so it is
-    reported in the table and never hides the other runs."""
+    reported in the table and never hides the other runs.
+
+    The scored record is saved as ``out_dir/record.json`` as soon as it exists, so a benchmark
+    stopped halfway keeps every run it finished. With ``resume``, a run whose saved record
+    finished (status ok) with the same method, bag and options is not run again: its record is
+    returned instead (:func:`saved_record`), marked ``resumed``."""
+    task = {"method": method, "bag": str(case.bag), **worker_options}
+    if resume and (saved := saved_record(out_dir, task)) is not None:
+        return {**saved, "resumed": True}
     record = run_worker(method, case, out_dir, **worker_options)
     if record["status"] == "ok":
         try:
@@ -192,7 +206,21 @@ def run_scored(method: str, case: CachedScenario, out_dir: Path, **worker_option
         except Exception as err:
             record["status"] = "failed"
             record["error"] = f"evaluation: {type(err).__name__}: {err}"
+    record["task"] = task
+    write_text_atomic(out_dir / RECORD_NAME, json.dumps(record, indent=1, default=str) + "\n")
     return record
+
+
+def saved_record(out_dir: Path, task: dict) -> dict | None:
+    """The record :func:`run_scored` saved in ``out_dir`` for the same ``task`` (method, bag and
+    worker options, compared as JSON would store them) if that run finished; None otherwise
+    (none saved, unreadable, failed, or another task)."""
+    try:
+        record = json.loads((out_dir / RECORD_NAME).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    same_task = record.get("task") == json.loads(json.dumps(task, default=str))
+    return record if same_task and record.get("status") == "ok" else None
 
 
 def evaluate_run(record: dict, case: CachedScenario, out_dir: Path, method: str) -> None:
@@ -292,7 +320,7 @@ def run_suite(args: argparse.Namespace) -> int:
     for note in skipped:
         _log(f"note: {note}; skipped")
 
-    run_dir = args.results_dir / started.strftime("%Y%m%dT%H%M%SZ")
+    run_dir = args.resume or args.results_dir / started.strftime("%Y%m%dT%H%M%SZ")
     run_dir.mkdir(parents=True, exist_ok=True)
     cases: list[CachedScenario] = []
     for scenario in args.scenarios:
@@ -321,6 +349,7 @@ def run_suite(args: argparse.Namespace) -> int:
             timeout_s=args.timeout,
             loop_closure=not args.no_loop,
             max_scans=args.max_scans,
+            resume=args.resume is not None,
         )
         record.update(
             scenario=case.scenario,
@@ -340,6 +369,7 @@ def run_suite(args: argparse.Namespace) -> int:
                 f"{case.label}: {METHOD_NAMES[method]} done: {record['run']['scans']} scans, "
                 f"{record['run']['wall_s']:.1f} s, {record['run']['scans_per_s']:.1f} scans/s, "
                 f"ATE {ate if ate is not None else 'n/a'} m, peak RSS {record['peak_rss_mib']:.0f} MiB"
+                + (" (finished earlier: its saved record)" if record.get("resumed") else "")
             )
         else:
             _log(f"{case.label}: {METHOD_NAMES[method]} FAILED: {record['error']}")
@@ -474,6 +504,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--regenerate", action="store_true", help="regenerate the cached simulations")
     parser.add_argument("--results-dir", type=Path, default=DEFAULT_RESULTS, help="default: eval/results")
     parser.add_argument(
+        "--resume",
+        type=Path,
+        metavar="RUN_DIR",
+        help="finish an interrupted suite in its folder (eval/results/<UTC time>): runs it finished with the "
+        "same options are scored from their saved record.json, the rest are run",
+    )
+    parser.add_argument(
         "--benchmarks",
         type=Path,
         default=DEFAULT_BENCHMARKS,
@@ -522,6 +559,8 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit("--max-scans must be at least 1")
     if args.duration is not None and args.duration <= 0:
         raise SystemExit("--duration must be positive")
+    if args.resume is not None and not args.resume.is_dir():
+        raise SystemExit(f"--resume {args.resume}: not a folder of an earlier suite run")
     args.command_text = " ".join([".venv/bin/python eval/run_suite.py", *(shlex.quote(a) for a in argv)]).strip()
     if args.profile:
         from suite_profile import profile_scenario

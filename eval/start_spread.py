@@ -16,7 +16,9 @@ within the spread as no difference. Usage::
     .venv/bin/python eval/start_spread.py --scenarios loop --seeds 0 --starts 0 5 --duration 20 --jobs 2
 
 Writes ``results.json`` and ``start_spread.md`` to ``--out`` (default
-``eval/results/start_spread_<UTC time>/``).
+``eval/results/start_spread_<UTC time>/``), again after every run that finishes (marked partial
+until the last), and each run's scored record beside its outputs; ``--resume`` with the same
+``--out`` finishes an interrupted one without running again what it finished.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import json
 import statistics
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -37,6 +39,8 @@ for entry in (str(REPO), str(HERE)):
 
 from run_suite import SCENARIOS, run_scored  # noqa: E402
 from suite_cache import DEFAULT_CACHE, ensure_scenario  # noqa: E402
+
+from lidar3d.io.atomic import write_text_atomic  # noqa: E402
 
 DEFAULT_RESULTS = REPO / "eval" / "results"
 
@@ -64,7 +68,8 @@ def _cell(value: float | None, digits: int = 3) -> str:
 
 
 def render(figures: dict[str, dict], starts: list[int], header: str) -> str:
-    """The Markdown table of :func:`drive_figures` per drive (``scenario_sSEED``)."""
+    """The Markdown table of :func:`drive_figures` per drive (``scenario_sSEED``); a start not run
+    (yet) is a dash."""
     lines = [
         header,
         "",
@@ -72,7 +77,10 @@ def render(figures: dict[str, dict], starts: list[int], header: str) -> str:
         "|---|" + "---:|" * (len(starts) + 2),
     ]
     for drive, f in figures.items():
-        cells = [f"{_cell(f['starts'][k]['ate_m'])} / {_cell(f['starts'][k]['max_m'], 2)}" for k in starts]
+        cells = [
+            f"{_cell(f['starts'][k]['ate_m'])} / {_cell(f['starts'][k]['max_m'], 2)}" if k in f["starts"] else "–"
+            for k in starts
+        ]
         spread = "–" if f["spread"] is None else f"x{f['spread']:.2f}"
         lines.append(f"| {drive} | " + " | ".join(cells) + f" | {_cell(f['median_ate_m'])} | {spread} |")
     return "\n".join(lines) + "\n"
@@ -88,7 +96,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--jobs", type=int, default=1, help="runs at a time")
     parser.add_argument("--cache-dir", type=Path, default=DEFAULT_CACHE)
     parser.add_argument("--out", type=Path, help="results folder (default eval/results/start_spread_<UTC time>)")
+    parser.add_argument(
+        "--resume", action="store_true", help="runs that finished in --out with the same options are not run again"
+    )
     args = parser.parse_args(argv)
+    if args.resume and args.out is None:
+        parser.error("--resume needs the --out folder of the run to finish")
     if any(k < 0 for k in args.starts):
         parser.error(f"--starts: a start scan is at least 0, not {min(args.starts)}")
     if args.jobs < 1:
@@ -113,17 +126,34 @@ def main(argv: list[str] | None = None) -> int:
             timeout_s=None,
             loop_closure=not args.no_loop,
             start=start,
+            resume=args.resume,
         )
 
-    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        records = dict(zip(tasks, pool.map(work, tasks)))
-    figures = {drive: drive_figures({k: records[(drive, k)] for k in starts}) for drive in cases}
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "results.json").write_text(json.dumps(figures, indent=1) + "\n", encoding="utf-8")
     loop = "loop closure off" if args.no_loop else "loop closure on"
-    table = render(figures, starts, f"lidar3d from start scans {', '.join(map(str, starts))} ({loop}):")
-    (out / "start_spread.md").write_text(table, encoding="utf-8")
-    print(table)
+    records: dict[tuple[str, int], dict] = {}
+
+    def publish(complete: bool) -> str:
+        """results.json and start_spread.md from the runs finished so far (written after each)."""
+        figures = {
+            drive: drive_figures({k: records[(drive, k)] for k in starts if (drive, k) in records})
+            for drive in cases
+            if any((drive, k) in records for k in starts)
+        }
+        out.mkdir(parents=True, exist_ok=True)
+        done = f"{len(records)} of {len(tasks)} runs"
+        summary = {"complete": complete, "runs_finished": len(records), "runs": len(tasks), "drives": figures}
+        write_text_atomic(out / "results.json", json.dumps(summary, indent=1) + "\n")
+        note = "" if complete else f" **partial: {done} finished**"
+        table = render(figures, starts, f"lidar3d from start scans {', '.join(map(str, starts))} ({loop}):{note}")
+        write_text_atomic(out / "start_spread.md", table)
+        return table
+
+    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
+        futures = {pool.submit(work, task): task for task in tasks}
+        for future in as_completed(futures):
+            records[futures[future]] = future.result()
+            publish(complete=False)
+    print(publish(complete=True))
     return 0
 
 
