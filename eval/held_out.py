@@ -30,7 +30,6 @@ import dataclasses
 import json
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -39,7 +38,7 @@ for entry in (str(REPO), str(HERE)):
     if entry not in sys.path:
         sys.path.insert(0, entry)
 
-from run_suite import run_scored  # noqa: E402
+from run_suite import DEFAULT_RESULTS, run_scored, run_tasks  # noqa: E402
 from suite_cache import DEFAULT_CACHE, CachedScenario, ensure_scenario  # noqa: E402
 from suite_peers import PEERS  # noqa: E402
 from suite_report import fmt_num, fmt_percent  # noqa: E402
@@ -113,7 +112,6 @@ VARIANTS: dict[str, tuple[str, str, dict, dict]] = {
 }
 DEFAULT_SEEDS = (10, 11)
 CACHE = DEFAULT_CACHE / "held_out"
-DEFAULT_RESULTS = REPO / "eval" / "results"
 
 
 def variant_scenario(name: str) -> Scenario:
@@ -184,9 +182,7 @@ def main(argv: list[str] | None = None) -> int:
             cases[(variant, seed)], method, out / f"{variant}_s{seed}" / method, not args.no_loop, args.resume
         )
 
-    records: dict[tuple[str, int, str], dict] = {}
-
-    def publish(complete: bool) -> str:
+    def publish(records: dict[tuple[str, int, str], dict], complete: bool) -> str:
         """results.json (every run finished so far) and held_out.md (every drive whose methods all
         finished), written after each run."""
         out.mkdir(parents=True, exist_ok=True)
@@ -209,12 +205,8 @@ def main(argv: list[str] | None = None) -> int:
         write_text_atomic(out / "held_out.md", "\n".join(lines) + "\n")
         return "\n".join(lines)
 
-    with ThreadPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = {pool.submit(work, task): task for task in tasks}
-        for future in as_completed(futures):
-            records[futures[future]] = future.result()
-            publish(complete=False)
-    print(publish(complete=True))
+    records = run_tasks(tasks, work, max(1, args.jobs), lambda so_far: publish(so_far, complete=False))
+    print(publish(records, complete=True))
     return 0
 
 

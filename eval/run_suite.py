@@ -34,7 +34,8 @@ import shlex
 import subprocess
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor
+from collections.abc import Callable, Hashable, Sequence
+from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
 
@@ -209,6 +210,24 @@ def run_scored(
     record["task"] = task
     write_text_atomic(out_dir / RECORD_NAME, json.dumps(record, indent=1, default=str) + "\n")
     return record
+
+
+def run_tasks(
+    tasks: Sequence[Hashable],
+    work: Callable[[Any], dict],
+    jobs: int,
+    after_each: Callable[[dict], None] | None = None,
+) -> dict:
+    """``work(task)`` for every task, ``jobs`` at a time; returns ``{task: record}``. After each
+    finishes, ``after_each`` gets the records so far (where a tool rewrites its partial results)."""
+    records: dict = {}
+    with ThreadPoolExecutor(max_workers=jobs) as pool:
+        futures = {pool.submit(work, task): task for task in tasks}
+        for future in as_completed(futures):
+            records[futures[future]] = future.result()
+            if after_each is not None:
+                after_each(records)
+    return records
 
 
 def saved_record(out_dir: Path, task: dict) -> dict | None:

@@ -28,7 +28,6 @@ import json
 import statistics
 import sys
 import time
-from concurrent.futures import ThreadPoolExecutor, as_completed
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
@@ -37,12 +36,10 @@ for entry in (str(REPO), str(HERE)):
     if entry not in sys.path:
         sys.path.insert(0, entry)
 
-from run_suite import SCENARIOS, run_scored  # noqa: E402
+from run_suite import DEFAULT_RESULTS, SCENARIOS, run_scored, run_tasks  # noqa: E402
 from suite_cache import DEFAULT_CACHE, ensure_scenario  # noqa: E402
 
 from lidar3d.io.atomic import write_text_atomic  # noqa: E402
-
-DEFAULT_RESULTS = REPO / "eval" / "results"
 
 
 def drive_figures(records: dict[int, dict]) -> dict:
@@ -130,9 +127,8 @@ def main(argv: list[str] | None = None) -> int:
         )
 
     loop = "loop closure off" if args.no_loop else "loop closure on"
-    records: dict[tuple[str, int], dict] = {}
 
-    def publish(complete: bool) -> str:
+    def publish(records: dict[tuple[str, int], dict], complete: bool) -> str:
         """results.json and start_spread.md from the runs finished so far (written after each)."""
         figures = {
             drive: drive_figures({k: records[(drive, k)] for k in starts if (drive, k) in records})
@@ -148,12 +144,8 @@ def main(argv: list[str] | None = None) -> int:
         write_text_atomic(out / "start_spread.md", table)
         return table
 
-    with ThreadPoolExecutor(max_workers=args.jobs) as pool:
-        futures = {pool.submit(work, task): task for task in tasks}
-        for future in as_completed(futures):
-            records[futures[future]] = future.result()
-            publish(complete=False)
-    print(publish(complete=True))
+    records = run_tasks(tasks, work, args.jobs, lambda so_far: publish(so_far, complete=False))
+    print(publish(records, complete=True))
     return 0
 
 
