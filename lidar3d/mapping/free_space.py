@@ -43,7 +43,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from lidar3d.config import DynamicConfig
-from lidar3d.mapping.voxel import group_sums, voxel_key_step, voxel_keys
+from lidar3d.mapping.voxel import group_sums, key_groups, voxel_key_step, voxel_keys
 
 __all__ = [
     "DynamicFilter",
@@ -475,7 +475,7 @@ class DynamicFilter:
         """``sweep`` grouped by voxel, with the surface normals of its voxels when they are used:
         what waits for its window (its lidar frame points go; its world points too without
         ``per_point``)."""
-        keys, inverse = np.unique(voxel_keys(sweep.points_world, self.config.voxel_m), return_inverse=True)
+        keys, inverse = key_groups(voxel_keys(sweep.points_world, self.config.voxel_m))
         inverse = inverse.reshape(-1).astype(np.int32)
         counts = np.bincount(inverse, minlength=keys.size)
         sums = np.column_stack(
@@ -602,7 +602,7 @@ class _GroundGrid:
         if not len(points_world):
             return np.zeros(0)
         cell = np.floor(points_world[:, :2] / _GROUND_CELL_M).astype(np.int64)
-        unique, inverse = np.unique((cell[:, 0] << 32) + (cell[:, 1] + (1 << 31)), return_inverse=True)
+        unique, inverse = key_groups((cell[:, 0] << 32) + (cell[:, 1] + (1 << 31)))
         cell = np.column_stack([unique >> 32, (unique & 0xFFFFFFFF) - (1 << 31)])
         low = np.full(len(unique), np.inf)
         for shift in ((-1, -1), (-1, 0), (-1, 1), (0, -1), (0, 0), (0, 1), (1, -1), (1, 0), (1, 1)):
