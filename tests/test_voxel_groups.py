@@ -6,7 +6,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from lidar3d.mapping.voxel import group_sums, key_groups, voxel_downsample, voxel_keys
+from lidar3d.mapping.voxel import (
+    KeyedCloud,
+    group_sums,
+    key_groups,
+    voxel_downsample,
+    voxel_downsample_parts,
+    voxel_keys,
+)
 from tests.fuzz_settings import fuzz_settings
 
 _KEYS = hnp.arrays(np.int64, st.integers(0, 400), elements=st.integers(-(2**62), 2**62))
@@ -39,3 +46,15 @@ def test_voxel_centroids_unchanged_to_the_bit() -> None:
     expected = group_sums(inverse, points, counts.size) / counts[:, None]
     got = voxel_downsample(points, 0.4)
     assert got.tobytes() == expected.tobytes()
+
+
+def test_parts_filtered_as_their_concatenation() -> None:
+    """voxel_downsample_parts over keyed parts (overlapping clouds, like a submap's keyframes,
+    some empty) gives voxel_downsample of their concatenation, bit for bit."""
+    rng = np.random.default_rng(5)
+    clouds = [rng.normal(loc=rng.uniform(-3, 3, 3), scale=2.0, size=(n, 3)) for n in (500, 0, 1200, 7, 800)]
+    parts = [KeyedCloud.of(cloud, 0.4) for cloud in clouds]
+    expected = voxel_downsample(np.concatenate(clouds), 0.4)
+    assert voxel_downsample_parts(parts).tobytes() == expected.tobytes()
+    assert voxel_downsample_parts([]).shape == (0, 3)
+    assert voxel_downsample_parts([parts[1]]).shape == (0, 3)

@@ -12,7 +12,7 @@ from lidar3d.config import MappingConfig
 from lidar3d.mapping.map_pieces import MapAnchor
 from lidar3d.mapping.registration import LineMap, PlaneMap
 from lidar3d.mapping.se3 import invert, transform_points
-from lidar3d.mapping.voxel import voxel_downsample
+from lidar3d.mapping.voxel import KeyedCloud, voxel_downsample_parts
 
 __all__ = ["Keyframe", "KeyframeSelector", "Submap", "SubmapTarget"]
 
@@ -126,7 +126,7 @@ class Submap:
         self.revision = 0
         self.keyframes: list[Keyframe] = []
         self._poses: list[np.ndarray] = []
-        self._cache: OrderedDict[int, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+        self._cache: OrderedDict[int, tuple[KeyedCloud, KeyedCloud]] = OrderedDict()
         self._target: SubmapTarget | None = None
 
     @classmethod
@@ -180,7 +180,9 @@ class Submap:
         self._target = None
         self.revision += 1
 
-    def _world_clouds(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+    def _world_clouds(self, k: int) -> tuple[KeyedCloud, KeyedCloud]:
+        """Keyframe ``k``'s corner and surface clouds in the world frame, keyed by the submap's
+        corner and surface voxels (cached)."""
         cached = self._cache.get(k)
         if cached is not None:
             self._cache.move_to_end(k)
@@ -188,8 +190,8 @@ class Submap:
         kf = self.keyframes[k]
         T = self._poses[k]
         clouds = (
-            transform_points(T, kf.corner_points.astype(np.float64)),
-            transform_points(T, kf.surf_points.astype(np.float64)),
+            KeyedCloud.of(transform_points(T, kf.corner_points.astype(np.float64)), self.corner_voxel_m),
+            KeyedCloud.of(transform_points(T, kf.surf_points.astype(np.float64)), self.surf_voxel_m),
         )
         self._cache[k] = clouds
         if len(self._cache) > self.cache_size:
@@ -221,12 +223,9 @@ class Submap:
             if set(selection) <= set(self._target.keyframe_indices) | newest:
                 return self._target
         self._added_since_build = 0
-        corners = [self._world_clouds(k)[0] for k in selection]
-        surfs = [self._world_clouds(k)[1] for k in selection]
-        corner = np.concatenate(corners) if corners else np.zeros((0, 3))
-        surf = np.concatenate(surfs) if surfs else np.zeros((0, 3))
-        corner = voxel_downsample(corner, self.corner_voxel_m)
-        surf = voxel_downsample(surf, self.surf_voxel_m)
+        clouds = [self._world_clouds(k) for k in selection]
+        corner = voxel_downsample_parts([corners for corners, _ in clouds])
+        surf = voxel_downsample_parts([surfs for _, surfs in clouds])
         self._target = SubmapTarget(
             keyframe_indices=selection,
             corners=LineMap(corner) if len(corner) else None,

@@ -2,14 +2,19 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+from dataclasses import dataclass
+
 import numpy as np
 
 __all__ = [
+    "KeyedCloud",
     "VoxelMap",
     "group_by_voxel",
     "group_sums",
     "key_groups",
     "voxel_downsample",
+    "voxel_downsample_parts",
     "voxel_key_step",
     "voxel_keys",
 ]
@@ -33,7 +38,7 @@ def voxel_key_step(di: int, dj: int, dk: int) -> int:
     return (di << 42) + (dj << 21) + dk
 
 
-def key_groups(keys: np.ndarray, counts: bool = False) -> tuple[np.ndarray, ...]:
+def key_groups(keys: np.ndarray, counts: bool = False, order: np.ndarray | None = None) -> tuple[np.ndarray, ...]:
     """The groups of equal (N,) integer ``keys``: ``(unique, inverse)``, the sorted unique keys and
     each key's row in them, plus ``counts`` (per unique key) when asked; the same arrays as
     ``np.unique(keys, return_inverse=True, return_counts=counts)``.
@@ -41,12 +46,14 @@ def key_groups(keys: np.ndarray, counts: bool = False) -> tuple[np.ndarray, ...]
     np.unique sorts with quicksort. Voxel keys come in runs of nearby points (a scan in firing
     order, a submap keyframe by keyframe), which a stable sort (timsort) merges instead of sorting
     again: 9 against 15 ms for the 265,000 keys of a `loop` submap (docs/performance.md).
+    ``order``: a stable sorting permutation of ``keys`` when the caller has one already.
     """
     keys = np.asarray(keys).reshape(-1)
     if keys.size == 0:
         empty = (keys.copy(), np.zeros(0, np.intp))
         return (*empty, np.zeros(0, np.intp)) if counts else empty
-    order = np.argsort(keys, kind="stable")
+    if order is None:
+        order = np.argsort(keys, kind="stable")
     ordered = keys[order]
     first = np.empty(keys.size, dtype=bool)
     first[0] = True
@@ -74,6 +81,49 @@ def voxel_downsample(points: np.ndarray, voxel_m: float, values: np.ndarray | No
         return centroids
     mean_values = np.bincount(inverse, weights=values, minlength=counts.size) / counts
     return centroids, mean_values
+
+
+@dataclass(frozen=True, slots=True)
+class KeyedCloud:
+    """A cloud with its voxel keys and their stable sort, for clouds filtered together again and
+    again (a submap's keyframes, each rebuild a different set of them).
+
+    Attributes:
+        points: (N,3) points, any frame (the one the voxels are in).
+        keys: (N,) :func:`voxel_keys` of ``points``.
+        order: (N,) the stable sorting permutation of ``keys``.
+    """
+
+    points: np.ndarray
+    keys: np.ndarray
+    order: np.ndarray
+
+    @staticmethod
+    def of(points: np.ndarray, voxel_m: float) -> KeyedCloud:
+        keys = voxel_keys(points, voxel_m)
+        return KeyedCloud(points, keys, np.argsort(keys, kind="stable"))
+
+
+def voxel_downsample_parts(parts: Sequence[KeyedCloud]) -> np.ndarray:
+    """(M,3) :func:`voxel_downsample` of the concatenated ``parts`` (keyed with one voxel size),
+    to the bit, from their sorted keys: the sort of the whole merges the parts' sorted runs
+    instead of sorting every key again, and no key is computed again.
+
+    A stable sort of the runs orders equal keys by part, then by their order within the part:
+    the concatenation's own stable order, so the groups, and the sums taken in point order, are
+    the same.
+    """
+    if not parts:
+        return np.zeros((0, 3))
+    points = np.concatenate([part.points for part in parts])
+    if len(points) == 0:
+        return points
+    keys = np.concatenate([part.keys for part in parts])
+    starts = np.cumsum([0] + [len(part.keys) for part in parts[:-1]])
+    in_runs = np.concatenate([start + part.order for start, part in zip(starts, parts)])
+    order = in_runs[np.argsort(keys[in_runs], kind="stable")]
+    _, inverse, counts = key_groups(keys, counts=True, order=order)
+    return group_sums(inverse, points, counts.size) / counts[:, None]
 
 
 def group_sums(inverse: np.ndarray, values: np.ndarray, n_groups: int) -> np.ndarray:
