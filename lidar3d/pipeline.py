@@ -217,14 +217,21 @@ class SlamPipeline:
         self.stats.count("scans")
         return estimate
 
-    def finish(self) -> None:
-        """End of input: the last sweep enters the map (and the keyframes), an open motion-model
-        stretch is reported; after loop closures the map is placed again from its pieces, each with
-        its keyframe's corrected pose. Calling it again changes nothing."""
+    def finish_tracking(self) -> None:
+        """End of input for the poses: the last sweep settles (into the keyframes and on its way
+        into the map), an open motion-model stretch is reported. The trajectory, the keyframes and
+        the loop closures are final after it, while the map's process may still be catching up
+        (:meth:`finish` waits for it). Calling it again changes nothing."""
         self.stats.end_of_input(self._n_seen)
         settled = self.tracker.finish()
         if settled is not None:
             self._settle(settled, next_is_keyframe=False)
+
+    def finish(self) -> None:
+        """End of input: :meth:`finish_tracking`, then the map takes every sweep; after loop
+        closures it is placed again from its pieces, each with its keyframe's corrected pose.
+        Calling it again changes nothing."""
+        self.finish_tracking()
         self._map.finish()
         if self.stats.counts.get("loop_closures") and self.stats.map_rebuild_s is None:
             t0 = time.perf_counter()

@@ -39,7 +39,7 @@ import numpy as np
 from lidar3d import __version__
 from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import ConfigError, Lidar3dError, OutputError
-from lidar3d.io.atomic import write_text_atomic
+from lidar3d.io.atomic import write_bytes_atomic, write_text_atomic
 from lidar3d.io.health_csv import write_health_csv
 from lidar3d.io.packet_source import input_config
 from lidar3d.io.pcd import write_pcd
@@ -127,13 +127,30 @@ class _RunPublisher:
     The map is written less often than the trajectories; between its publications the set keeps
     the last ``map.pcd`` (and ``dynamic.pcd``), and the summary's ``map_points`` (``dynamic_points``)
     counts the points of that file. The loop closures' top view (``trajectory_loops.png``, a
-    matplotlib drawing of 0.1-0.3 s) is drawn with the map too, and kept between.
+    matplotlib drawing of 0.1-0.3 s, and about a second more for the first, which imports
+    matplotlib) is drawn with the map too, and kept between.
     """
 
     def __init__(self, out_dir: Path, config: Config) -> None:
         self.out_dir = out_dir
         self.config = config
         self.summary: RunSummary | None = None  # the summary of the set in the folder
+        self._drawn: tuple[np.ndarray, bytes] | None = None  # (positions it shows, PNG) of draw_top_view
+
+    def draw_top_view(self, result: SlamResult) -> None:
+        """Draw the loop closures' top view of ``result`` now (nothing without a pose graph); the next
+        publication whose trajectory is the same uses it instead of drawing again. The run calls
+        it once the poses are final and the map's process is still taking the last sweeps, so the
+        drawing (matplotlib's import included, about a second) overlaps with that wait."""
+        if not result.pose_graph_g2o:
+            return
+        self._drawn = (result.trajectory.positions_m.copy(), _top_view_png(result))
+
+    def _top_view_png(self, result: SlamResult) -> bytes:
+        """The top view of ``result``: the one drawn ahead when it shows the same positions."""
+        if self._drawn is not None and np.array_equal(self._drawn[0], result.trajectory.positions_m):
+            return self._drawn[1]
+        return _top_view_png(result)
 
     def publish(
         self, result: SlamResult, summary: RunSummary, *, with_map: bool = True, lidar_only: Trajectory | None = None
@@ -188,7 +205,7 @@ class _RunPublisher:
                     dynamic_intensity = result.dynamic_intensity.astype(np.float32)
                     write_pcd(staging / "dynamic.pcd", result.dynamic_points, intensity=dynamic_intensity)
             if result.pose_graph_g2o:
-                _write_loop_outputs(staging, result, top_view=with_map)
+                _write_loop_outputs(staging, result, self._top_view_png(result) if with_map else None)
 
         self.summary = publish_set(self.out_dir, summary, write, rows=rows, keep=keep)
         return self.summary
@@ -208,16 +225,21 @@ class _RunPublisher:
         return self.summary
 
 
-def _write_loop_outputs(out_dir: Path, result: SlamResult, *, top_view: bool) -> None:
-    """``loops.csv`` (every candidate), ``pose_graph.g2o`` and (``top_view``) the top view with closures."""
-    from lidar3d.export.loop_report import write_loops_csv, write_pose_graph_g2o, write_top_view
+def _write_loop_outputs(out_dir: Path, result: SlamResult, top_view_png: bytes | None) -> None:
+    """``loops.csv`` (every candidate), ``pose_graph.g2o`` and the top view's PNG bytes when given."""
+    from lidar3d.export.loop_report import write_loops_csv, write_pose_graph_g2o
 
     write_loops_csv(out_dir / "loops.csv", result.loop_candidates)
     write_pose_graph_g2o(out_dir / "pose_graph.g2o", result.pose_graph_g2o)
-    if not top_view:
-        return
-    write_top_view(
-        out_dir / TOP_VIEW_NAME,
+    if top_view_png is not None:
+        write_bytes_atomic(out_dir / TOP_VIEW_NAME, top_view_png)
+
+
+def _top_view_png(result: SlamResult) -> bytes:
+    """PNG bytes of the trajectory's top view with its accepted loop closures."""
+    from lidar3d.export.loop_report import top_view_png
+
+    return top_view_png(
         result.trajectory.positions_m,
         result.keyframes.positions_m,
         [c for c in result.loop_candidates if c.accepted],
@@ -324,6 +346,8 @@ def run_bag(
             log.warning("%s: %s", ", ".join(inputs), warning)
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
+        pipeline.finish_tracking()  # the poses are final; the map's process takes the last sweeps
+        publisher.draw_top_view(pipeline.result(with_map=False))  # meanwhile
         pipeline.finish()  # after loop closures, the map is placed again with the corrected keyframes
         finished = True
     finally:

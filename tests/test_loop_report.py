@@ -9,9 +9,9 @@ import numpy as np
 from lidar3d.export.loop_report import (
     LOOPS_CSV_COLUMNS,
     loops_csv_text,
+    top_view_png,
     write_loops_csv,
     write_pose_graph_g2o,
-    write_top_view,
 )
 from lidar3d.loop import LoopCandidate, PoseGraph, Verdict
 
@@ -68,10 +68,7 @@ def test_g2o_and_top_view_files(tmp_path):
     assert g2o.read_text().count("VERTEX_SE3:QUAT") == 6
     closures = [_candidate(5, 0, Verdict.ACCEPTED, "ok"), _candidate(4, 0, Verdict.LOW_OVERLAP, "no")]
     positions = np.array(poses)[:, :3, 3]
-    png = write_top_view(
-        tmp_path / "top_view.png", positions, positions, closures, before_m=positions + 0.1, reference_m=positions
-    )
-    data = png.read_bytes()
+    data = top_view_png(positions, positions, closures, before_m=positions + 0.1, reference_m=positions)
     assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
     assert not list(tmp_path.glob(".*tmp*"))  # atomic writes leave no temporaries
 

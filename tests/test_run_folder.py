@@ -17,14 +17,18 @@ import sys
 import textwrap
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
+import numpy as np
 import pytest
 from test_summary import example_summary
 
 import lidar3d.gnss.reference as reference_module
 import lidar3d.io.run_folder as run_folder
 import lidar3d.metrics.span_eval as span_eval
+import lidar3d.run as run_module
 from lidar3d.cli.main import main
+from lidar3d.config import Config
 from lidar3d.errors import OutputError
 from lidar3d.gnss.reference import span_reference
 from lidar3d.io.run_folder import (
@@ -36,6 +40,7 @@ from lidar3d.io.run_folder import (
     publish_set,
     read_run_folder,
 )
+from lidar3d.pipeline import SlamPipeline
 from lidar3d.run import run_bag
 from lidar3d.summary import read_summary
 
@@ -354,3 +359,34 @@ def test_a_sigkilled_run_leaves_a_consistent_set(hook, disk_state, scans, partia
         run_bag(simulated.bag, reference, max_scans=10, prefetch=False)
         for name in ("trajectory_tum.txt", "map.pcd", "keyframes_tum.txt"):
             assert (out / name).read_bytes() == (reference / name).read_bytes(), name
+
+
+def test_the_final_top_view_is_drawn_once_before_the_map_is_waited_for(simulated, tmp_path, monkeypatch):
+    """The top view is drawn as soon as the poses are final (while the map's process takes the last
+    sweeps) and that drawing is the one published; a trajectory that changes after it is drawn again."""
+    events = []
+    drawn = run_module._top_view_png
+    finish = SlamPipeline.finish
+
+    def counted_drawing(result):
+        events.append(("draw", len(result.trajectory)))
+        return drawn(result)
+
+    def noted_finish(self):
+        events.append(("map finished", None))
+        finish(self)
+
+    monkeypatch.setattr(run_module, "_top_view_png", counted_drawing)
+    monkeypatch.setattr(SlamPipeline, "finish", noted_finish)
+    out = tmp_path / "out"
+    run_bag(simulated.bag, out, max_scans=6, prefetch=False)
+    assert events == [("draw", 6), ("map finished", None)]
+    assert (out / "trajectory_loops.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+    publisher = run_module._RunPublisher(tmp_path / "other", Config())
+    result = SimpleNamespace(pose_graph_g2o="x", trajectory=SimpleNamespace(positions_m=np.zeros((3, 3))))
+    monkeypatch.setattr(run_module, "_top_view_png", lambda r: r.trajectory.positions_m.tobytes())
+    publisher.draw_top_view(result)
+    assert publisher._top_view_png(result) == np.zeros((3, 3)).tobytes()
+    moved = SimpleNamespace(pose_graph_g2o="x", trajectory=SimpleNamespace(positions_m=np.ones((3, 3))))
+    assert publisher._top_view_png(moved) == np.ones((3, 3)).tobytes()

@@ -1,4 +1,4 @@
-"""Adapter: loop-closure outputs on disk — ``loops.csv``, ``pose_graph.g2o``, the top-view PNG.
+"""Adapter: loop-closure outputs on disk — ``loops.csv``, ``pose_graph.g2o``, the top-view PNG's bytes.
 
 Writes files atomically through :mod:`lidar3d.io.atomic`, from the records of :mod:`lidar3d.loop`
 (pure computation, which does not import this module). Matplotlib is imported only when a plot is
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lidar3d.io.atomic import write_bytes_atomic, write_text_atomic
+from lidar3d.io.atomic import write_text_atomic
 from lidar3d.loop.records import LoopCandidate
 
 __all__ = [
@@ -24,7 +24,6 @@ __all__ = [
     "top_view_png",
     "write_loops_csv",
     "write_pose_graph_g2o",
-    "write_top_view",
 ]
 
 LOOPS_CSV_COLUMNS = (
@@ -174,9 +173,3 @@ def top_view_figure(
     if ax.get_legend_handles_labels()[0]:
         ax.legend(loc="best", fontsize=8)
     return figure
-
-
-def write_top_view(path: str | Path, *args, **kwargs) -> Path:
-    """Write :func:`top_view_png` to ``path`` atomically; returns the path."""
-    write_bytes_atomic(path, top_view_png(*args, **kwargs))
-    return Path(path)
