@@ -25,7 +25,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -218,19 +218,16 @@ class SlamPipeline:
         return estimate
 
     def finish_tracking(self) -> None:
-        """End of input for the poses: the last sweep settles (into the keyframes and on its way
-        into the map), an open motion-model stretch is reported. The trajectory, the keyframes and
-        the loop closures are final after it, while the map's process may still be catching up
-        (:meth:`finish` waits for it). Calling it again changes nothing."""
+        """End of input for the poses (the last sweep settled, an open motion-model stretch
+        reported): trajectory, keyframes and closures are final, the map may still be catching up."""
         self.stats.end_of_input(self._n_seen)
         settled = self.tracker.finish()
         if settled is not None:
             self._settle(settled, next_is_keyframe=False)
 
     def finish(self) -> None:
-        """End of input: :meth:`finish_tracking`, then the map takes every sweep; after loop
-        closures it is placed again from its pieces, each with its keyframe's corrected pose.
-        Calling it again changes nothing."""
+        """End of input: :meth:`finish_tracking`, then the map takes every sweep; after loop closures
+        it is placed again from its pieces, each with its keyframe's corrected pose. Idempotent."""
         self.finish_tracking()
         self._map.finish()
         if self.stats.counts.get("loop_closures") and self.stats.map_rebuild_s is None:
@@ -250,15 +247,14 @@ class SlamPipeline:
         (from the map's process: the whole map copied across, tens of MB, each time).
         """
         keyframes = self.submap.keyframes
-        odometry = np.array([e.T_world_odom for e in self._estimates]).reshape(-1, 4, 4)
         clouds = self._map.clouds() if with_map else MapClouds.empty()
-        trajectory = self._trajectory()
+        trajectory = _trajectory_of(self._estimates)
         scan_indices = np.array([e.scan_index for e in self._estimates], dtype=np.int64)
         health = tuple(e.health for e in self._estimates)
         health_summary = summarize_health(health, scan_indices, trajectory.positions_m)
         return SlamResult(
             trajectory=trajectory,
-            odometry=Trajectory(np.array([e.stamp_ns for e in self._estimates], dtype=np.int64), odometry),
+            odometry=_trajectory_of(self._estimates, odometry=True),
             keyframes=Trajectory(
                 np.array([kf.stamp_ns for kf in keyframes], dtype=np.int64), self.submap.poses.reshape(-1, 4, 4)
             ),
@@ -280,10 +276,6 @@ class SlamPipeline:
             health=health,
             health_summary=health_summary,
         )
-
-    def _trajectory(self) -> Trajectory:
-        stamps = np.array([e.stamp_ns for e in self._estimates], dtype=np.int64)
-        return Trajectory(stamps, np.array([e.T_world_lidar for e in self._estimates]).reshape(-1, 4, 4))
 
     def _settle(self, settled: SettledSweep, *, next_is_keyframe: bool) -> LoopUpdate | None:
         """The latest estimate's sweep is final: take its revised pose, store it as a keyframe if
@@ -332,7 +324,7 @@ class SlamPipeline:
         if self.moving_points is not None:
             self.moving_points.clear()  # the keyframes whose rays it holds moved
         keyframe_stamps = np.array([kf.stamp_ns for kf in self.submap.keyframes], dtype=np.int64)
-        before = self._trajectory()
+        before = _trajectory_of(self._estimates)
         corrected = correct_scan_poses(
             before.stamps_ns, before.T_world_lidar, keyframe_stamps, update.previous_poses, update.poses
         )
@@ -358,3 +350,10 @@ def run_slam(scans: Iterable[Scan], config: Config | None = None) -> SlamResult:
         pipeline.process(scan)
     pipeline.finish()
     return pipeline.result()
+
+
+def _trajectory_of(estimates: Sequence[ScanEstimate], *, odometry: bool = False) -> Trajectory:
+    """The estimates' poses (the scan-to-scan odometry's chained alone with ``odometry``) at their stamps."""
+    stamps = np.array([e.stamp_ns for e in estimates], dtype=np.int64)
+    poses = [e.T_world_odom if odometry else e.T_world_lidar for e in estimates]
+    return Trajectory(stamps, np.array(poses).reshape(-1, 4, 4))
