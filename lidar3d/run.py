@@ -25,9 +25,11 @@ one, and the summary always describes exactly the files beside it.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import itertools
 import logging
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -137,14 +139,22 @@ class _RunPublisher:
         self.summary: RunSummary | None = None  # the summary of the set in the folder
         self._drawn: tuple[np.ndarray, bytes] | None = None  # (positions it shows, PNG) of draw_top_view
 
-    def draw_top_view(self, result: SlamResult) -> None:
-        """Draw the loop closures' top view of ``result`` now (nothing without a pose graph); the next
-        publication whose trajectory is the same uses it instead of drawing again. The run calls
-        it once the poses are final and the map's process is still taking the last sweeps, so the
-        drawing (matplotlib's import included, about a second) overlaps with that wait."""
-        if not result.pose_graph_g2o:
-            return
-        self._drawn = (result.trajectory.positions_m.copy(), _top_view_png(result))
+    def draw_top_view_meanwhile(self, result: SlamResult) -> threading.Thread:
+        """Start drawing the loop closures' top view of ``result`` in a thread of its own (nothing
+        without a pose graph) and return it; the next publication whose trajectory is the same
+        uses the drawing instead of drawing again. The run starts it once the poses are final and
+        then waits for the map's process (its last window of sweeps, the map placed again after
+        loop closures): the drawing, matplotlib's import included, overlaps with that wait. A
+        drawing that fails leaves nothing drawn: the publication draws again, and fails there."""
+
+        def draw() -> None:
+            if result.pose_graph_g2o:
+                with contextlib.suppress(Exception):
+                    self._drawn = (result.trajectory.positions_m.copy(), _top_view_png(result))
+
+        thread = threading.Thread(target=draw, name="lidar3d-top-view", daemon=True)
+        thread.start()
+        return thread
 
     def _top_view_png(self, result: SlamResult) -> bytes:
         """The top view of ``result``: the one drawn ahead when it shows the same positions."""
@@ -307,6 +317,7 @@ def run_bag(
     topic = ""
     input_stats: InputStatistics | None = None
     finished = False
+    drawing: threading.Thread | None = None
     try:
         with open_prepared_scans(paths, config, start=start, max_scans=max_scans, prefetch=prefetch) as stream:
             # Only a bag that opens gets an output folder (created here, with a clear error).
@@ -346,13 +357,15 @@ def run_bag(
             log.warning("%s: %s", ", ".join(inputs), warning)
         if not pipeline.estimates:
             raise Lidar3dError(f"{', '.join(inputs)}: no scan was processed")
-        pipeline.finish_tracking()  # the poses are final; the map's process takes the last sweeps
-        publisher.draw_top_view(pipeline.result(with_map=False))  # meanwhile
+        pipeline.finish_tracking()  # the poses are final
+        drawing = publisher.draw_top_view_meanwhile(pipeline.result(with_map=False))
         pipeline.finish()  # after loop closures, the map is placed again with the corrected keyframes
         finished = True
     finally:
         if not finished:
             pipeline.finish()  # the last scan enters the map of the partial outputs
+        if drawing is not None:
+            drawing.join()
         result = pipeline.result(partial=not finished)
         runtime = time.perf_counter() - t_start
         if pipeline.estimates:

@@ -15,6 +15,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+import threading
 import time
 from pathlib import Path
 from types import SimpleNamespace
@@ -361,32 +362,41 @@ def test_a_sigkilled_run_leaves_a_consistent_set(hook, disk_state, scans, partia
             assert (out / name).read_bytes() == (reference / name).read_bytes(), name
 
 
-def test_the_final_top_view_is_drawn_once_before_the_map_is_waited_for(simulated, tmp_path, monkeypatch):
-    """The top view is drawn as soon as the poses are final (while the map's process takes the last
-    sweeps) and that drawing is the one published; a trajectory that changes after it is drawn again."""
+def test_the_final_top_view_is_drawn_once_while_the_map_is_waited_for(simulated, tmp_path, monkeypatch):
+    """The top view is drawn in a thread of its own as soon as the poses are final, while the
+    pipeline waits for the map, and that drawing is the one published; a trajectory that changes
+    after it, or a drawing that failed, is drawn again."""
     events = []
+    started = threading.Event()
     drawn = run_module._top_view_png
     finish = SlamPipeline.finish
 
     def counted_drawing(result):
-        events.append(("draw", len(result.trajectory)))
+        events.append(("draw", len(result.trajectory), threading.current_thread().name))
+        started.set()
         return drawn(result)
 
     def noted_finish(self):
-        events.append(("map finished", None))
+        events.append(("map wait begins; drawing under way", started.wait(timeout=30)))
         finish(self)
 
     monkeypatch.setattr(run_module, "_top_view_png", counted_drawing)
     monkeypatch.setattr(SlamPipeline, "finish", noted_finish)
     out = tmp_path / "out"
     run_bag(simulated.bag, out, max_scans=6, prefetch=False)
-    assert events == [("draw", 6), ("map finished", None)]
+    assert sorted(events, key=str) == [("draw", 6, "lidar3d-top-view"), ("map wait begins; drawing under way", True)]
     assert (out / "trajectory_loops.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
     publisher = run_module._RunPublisher(tmp_path / "other", Config())
     result = SimpleNamespace(pose_graph_g2o="x", trajectory=SimpleNamespace(positions_m=np.zeros((3, 3))))
     monkeypatch.setattr(run_module, "_top_view_png", lambda r: r.trajectory.positions_m.tobytes())
-    publisher.draw_top_view(result)
+    publisher.draw_top_view_meanwhile(result).join()
     assert publisher._top_view_png(result) == np.zeros((3, 3)).tobytes()
     moved = SimpleNamespace(pose_graph_g2o="x", trajectory=SimpleNamespace(positions_m=np.ones((3, 3))))
     assert publisher._top_view_png(moved) == np.ones((3, 3)).tobytes()
+
+    failing = run_module._RunPublisher(tmp_path / "third", Config())
+    monkeypatch.setattr(run_module, "_top_view_png", lambda r: 1 / 0)
+    failing.draw_top_view_meanwhile(result).join()  # the thread fails quietly ...
+    monkeypatch.setattr(run_module, "_top_view_png", lambda r: b"again")
+    assert failing._top_view_png(result) == b"again"  # ... and the publication draws again
