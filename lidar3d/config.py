@@ -280,11 +280,10 @@ class SegmentationConfig:
         0.04, _closed(0.0, 1.0, "m"), "contact: ground this close to its run's line stays ground"
     )
     ground_noise_m: float = _key(0.05, _closed(0.0, 1.0, "m"), "continuity: height steps this small pass at any angle")
-    # Off by default: it raises ground precision at long range (0.970 -> 0.984) but the far ground
-    # it drops cost the realistic scenarios (blind_turn seed 0: 0.20 -> 0.89 m ATE, a standing
-    # vehicle jumping 4 cm); see docs/stages/segmentation.md.
+    # Ground precision at long range 0.972 -> 0.984 on the realistic scenarios; the cells it lifts
+    # off the ground stay in mapping's dense cloud (docs/stages/segmentation.md).
     ground_surface_sector_deg: float = _key(
-        0.0,
+        2.0,
         _closed(0.0, 90.0, "deg"),
         "surface: ground must lie on the ground below it in a sector this wide (0: off)",
     )

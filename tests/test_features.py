@@ -93,7 +93,7 @@ def _reference_selection(segmentation, smoothness, config: FeatureConfig):
         members = np.flatnonzero(smoothness.section == s)
         count = 0
         for i in sorted(members, key=lambda i: (-c[i], i)):
-            if not picked[i] and c[i] > smoothness.edge_threshold and not segmentation.is_ground[i]:
+            if not picked[i] and c[i] > smoothness.edge_threshold and not segmentation.is_coarse_ground[i]:
                 count += 1
                 if count > config.less_sharp_per_section:
                     break
@@ -103,7 +103,7 @@ def _reference_selection(segmentation, smoothness, config: FeatureConfig):
                 suppress(i)
         count = 0
         for i in sorted(members, key=lambda i: (c[i], i)):
-            if not picked[i] and c[i] < config.planar_threshold and segmentation.is_ground[i]:
+            if not picked[i] and c[i] < config.planar_threshold and segmentation.is_coarse_ground[i]:
                 flat.append(i)
                 count += 1
                 suppress(i)
@@ -160,8 +160,8 @@ def test_feature_invariants(scene):
     less_sharp = _indices_of(features.less_sharp.points, segmentation)
     flat = _indices_of(features.flat.points, segmentation)
     assert set(sharp) <= set(less_sharp)
-    assert not segmentation.is_ground[less_sharp].any()
-    assert segmentation.is_ground[flat].all()
+    assert not segmentation.is_coarse_ground[less_sharp].any()
+    assert segmentation.is_coarse_ground[flat].all()
     assert np.all(smoothness.curvature[less_sharp] > CONFIG.features.edge_threshold)
     assert np.all(smoothness.curvature[flat] < CONFIG.features.planar_threshold)
     for picks, limit in ((sharp, 2), (less_sharp, 20), (flat, 4)):

@@ -13,6 +13,7 @@ from lidar3d.records import Scan
 
 FILES = {
     "ground.pcd",
+    "lifted.pcd",
     "clusters.pcd",
     "outliers.pcd",
     "edge_sharp.pcd",

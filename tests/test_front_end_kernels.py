@@ -8,6 +8,8 @@ curvature and rejection flags as array expressions, the less-flat voxels by ``np
 greedy feature pick as a Python loop over the candidates sorted by ``np.lexsort``.
 """
 
+import dataclasses
+
 import numpy as np
 import pytest
 from frontend_sim import joins_by_beta, suppression_spans
@@ -221,14 +223,60 @@ def _reference_release(image, ground_mask, supported, config):
         ground_mask[i] &= ~(above_is_object & ~supported[i] & joins_by_beta(near, far, alpha[i], tan_theta))
 
 
+def _reference_check_surface(ground_mask, points, azimuth_resolution_rad, config):
+    """The surface check as it was: row by row, every column at once, the sector sums by cumsum."""
+    n_top, n_columns = points.shape[:2]
+    half_width = int(round(np.deg2rad(config.ground_surface_sector_deg) / 2.0 / azimuth_resolution_rad))
+    half_width = min(half_width, (n_columns - 1) // 2)
+
+    def sector_sum(values):
+        padded = np.concatenate([values[n_columns - half_width :], values, values[:half_width]])
+        cumulative = np.concatenate([np.zeros((1, values.shape[1])), np.cumsum(padded, axis=0)])
+        return cumulative[2 * half_width + 1 :] - cumulative[:n_columns]
+
+    distance = np.hypot(points[..., 0], points[..., 1])
+    height = points[..., 2]
+    tan_range = np.tan(np.deg2rad(config.ground_surface_range_slope_deg))
+    prefix = np.zeros((n_top + 1, n_columns, 8))
+    sector_rows = np.zeros(n_columns)
+    rows_with_ground = np.flatnonzero(ground_mask[:n_top].any(axis=1))
+    for i in range(int(rows_with_ground[-1]) + 1 if rows_with_ground.size else 0):
+        on_row = ground_mask[i]
+        if i >= 3 and on_row.any():
+            first_local = max(i - config.ground_surface_rows, 0)
+            sector = sector_sum(np.concatenate([prefix[i], prefix[i] - prefix[first_local]], axis=1))
+            columns = np.flatnonzero(on_row & (sector_rows >= 3))
+            s0, s1, s2, s3, s4, t0, t1, t2 = sector[columns, :8].T
+            local = sector[columns, 8:]
+            determinant = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
+            numerator = s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s2 * t1) + t0 * (s1 * s3 - s2 * s2)
+            n, sum_d, sum_dd, sum_z, sum_zd = local[:, 0], local[:, 1], local[:, 2], local[:, 5], local[:, 6]
+            with np.errstate(invalid="ignore", divide="ignore"):
+                d0, z0 = sum_d / n, sum_z / n
+                spread = sum_dd - n * d0**2
+                offset = distance[i, columns] - d0
+                above_m = height[i, columns] - (z0 + (sum_zd - n * d0 * z0) / spread * offset)
+                tolerance = (
+                    config.ground_surface_margin_m
+                    + distance[i, columns] * tan_range
+                    + np.abs(numerator / determinant) * offset**2
+                )
+                fitted = (np.abs(determinant) > 1e-9 * s0 * s2 * s4) & (n >= 3) & (spread >= n * 1.0)
+                on_row[columns[fitted & ~(above_m <= tolerance)]] = False
+        d, z = np.where(on_row, distance[i], 0.0), np.where(on_row, height[i], 0.0)
+        one = on_row.astype(np.float64)
+        prefix[i + 1] = prefix[i] + np.stack([one, d, d**2, d**3, d**4, z, z * d, z * d**2], axis=1)
+        sector_rows += sector_sum(one[:, None])[:, 0] > 0
+
+
 def _reference_picks(segmentation, smoothness, config):
     """The greedy pick as it was, in Python, over the precomputed suppression spans: (sharp, less
     sharp, flat) indices."""
     n = len(segmentation)
     curvature, section = smoothness.curvature, smoothness.section
     n_sections = segmentation.ring_start.shape[0] * config.sections_per_ring
-    edge_candidate = smoothness.pickable & ~segmentation.is_ground & (curvature > smoothness.edge_threshold)
-    flat_candidate = smoothness.pickable & segmentation.is_ground & (curvature < config.planar_threshold)
+    edge_candidate = smoothness.pickable & ~segmentation.is_coarse_ground & (curvature > smoothness.edge_threshold)
+    flat_candidate = smoothness.pickable & segmentation.is_coarse_ground & (curvature < config.planar_threshold)
     lo, hi = suppression_spans(segmentation, config.curvature_half_window, config.neighbour_max_column_gap)
     edges, edge_lo, edge_hi, edge_bounds = (
         a.tolist() for a in _reference_sorted_by_section(edge_candidate, section, -curvature, n_sections, lo, hi)
@@ -324,6 +372,27 @@ def test_ground_contacts_are_released_as_by_the_row_by_row_array_walk(scans, mon
     for scan in scans:
         mark_ground(project_scan(scan, config.sensor, config.segmentation), config.segmentation, config.sensor)
     assert len(n_released) == len(scans) and sum(n_released) > 0  # contacts were released
+
+
+def test_ground_surface_check_is_that_of_the_row_by_row_array_check(scans, monkeypatch):
+    """Every surface check during ``mark_ground`` (check on) unmarks what the array version does."""
+    compiled = ground._check_surface
+    n_unmarked = []
+
+    def both(ground_mask, points, azimuth_resolution_rad, config):
+        reference = ground_mask.copy()
+        before = int(ground_mask.sum())
+        compiled(ground_mask, points, azimuth_resolution_rad, config)
+        _reference_check_surface(reference, points, azimuth_resolution_rad, config)
+        np.testing.assert_array_equal(ground_mask, reference)
+        n_unmarked.append(before - int(ground_mask.sum()))
+
+    monkeypatch.setattr(ground, "_check_surface", both)
+    config = Config()
+    segmentation = dataclasses.replace(config.segmentation, ground_surface_sector_deg=2.0)
+    for scan in scans:
+        mark_ground(project_scan(scan, config.sensor, segmentation), segmentation, config.sensor)
+    assert len(n_unmarked) == len(scans) and sum(n_unmarked) > 0  # cells were taken out of the ground
 
 
 def test_smoothness_is_that_of_the_array_expressions(scans):

@@ -9,11 +9,12 @@ import pytest
 from frontend_sim import cell_truth, simulation
 
 from lidar3d.config import Config
+from lidar3d.features import prepare_scan
 from lidar3d.records import Scan
 from lidar3d.segmentation import segment_scan
 from lidar3d.sensors import VLP16
 
-OFF = Config().segmentation  # the default: the test before this check
+OFF = dataclasses.replace(Config().segmentation, ground_surface_sector_deg=0.0)  # the slope tests alone
 CONFIG = dataclasses.replace(Config(), segmentation=dataclasses.replace(OFF, ground_surface_sector_deg=2.0))
 SENSOR_HEIGHT_M = 1.8
 
@@ -122,3 +123,18 @@ def test_hilly_ground_recall_is_kept():
     precision, recall = _window_scores("hilly")
     assert recall >= 0.95 and recall >= recall_before - 0.002, (recall, recall_before)
     assert precision >= 0.98, precision
+
+
+def test_lifted_cells_leave_the_ground_label_only():
+    scan, is_ground = _cast(box_x_m=60.0)
+    segmentation = segment_scan(scan, CONFIG.segmentation, CONFIG.sensor)
+    lifted, ground = segmentation.lifted_mask, segmentation.ground_mask
+    assert lifted.sum() >= 20 and not (lifted & ground).any()
+    assert not is_ground[segmentation.image.point_index[lifted]].any()  # all of them the box's base
+    assert not segment_scan(scan, OFF, CONFIG.sensor).lifted_mask.any()
+    # the features and mapping's dense cloud are made from the coarse ground, as without the check
+    with_check = prepare_scan(scan, CONFIG)
+    without = prepare_scan(scan, dataclasses.replace(CONFIG, segmentation=OFF))
+    np.testing.assert_array_equal(with_check.coarse_ground.points, without.coarse_ground.points)
+    for name in ("sharp", "less_sharp", "flat", "less_flat", "outliers"):
+        np.testing.assert_array_equal(getattr(with_check.features, name).points, getattr(without.features, name).points)

@@ -83,7 +83,7 @@ def test_without_moving_drops_the_moving_points_and_keeps_the_ground():
     fired, deskewed = moving.without_moving(sweep, sweep, np.eye(4))
     assert len(fired.features.less_flat) == len(deskewed.features.less_flat) == 1
     np.testing.assert_allclose(deskewed.features.less_flat.points[0], car[1])
-    assert len(deskewed.ground) == 1
+    assert len(deskewed.coarse_ground) == 1
     unchanged = moving.without_moving(sweep, sweep, None)  # the first scan: nothing to test against
     assert unchanged == (sweep, sweep)
 

@@ -134,14 +134,15 @@ def test_positive_pitch_means_nose_down():
 
 
 def _object_shares(segmentation_config, scenario="loop"):
-    """Per object class: the share of each object's non-ground cells in its largest kept cluster;
+    """Per object class: the share of each object's cells outside the coarse ground (the cells the
+    clustering sees) in its largest kept cluster;
     and the fraction of clusters whose cells come from one object (>= 95 %)."""
     shares: dict[int, list[float]] = {}
     pure = clusters = 0
     for sim_scan in sample_scans(scenario):
         segmentation = segment_scan(sim_scan.scan, segmentation_config, CONFIG.sensor)
         truth = cell_truth(sim_scan, segmentation.image)
-        truth[segmentation.ground_mask] = -1
+        truth[segmentation.coarse_ground_mask] = -1
         for object_id in np.unique(truth[truth > 0]):
             cells = truth == object_id
             if cells.sum() < 30:  # big enough: 30 cells, LeGO-LOAM's always-valid cluster size
@@ -266,11 +267,13 @@ def test_segmented_cloud_layout(scene):
         block = slice(segmentation.ring_start[r], segmentation.ring_end[r])
         assert np.all(segmentation.row[block] == r)
     assert segmentation.ring_end[-1] == len(segmentation)
-    ground_columns = segmentation.column[segmentation.is_ground]
+    ground_columns = segmentation.column[segmentation.is_coarse_ground]
     assert np.all((ground_columns % 5 == 0) | (ground_columns <= 5) | (ground_columns >= n_columns - 5))
-    assert np.all(~segmentation.is_ground | segmentation.ground_mask[segmentation.row, segmentation.column])
+    assert np.all(
+        ~segmentation.is_coarse_ground | segmentation.coarse_ground_mask[segmentation.row, segmentation.column]
+    )
     kept = segmentation.cluster_label[segmentation.row, segmentation.column] >= 0
-    np.testing.assert_array_equal(kept | segmentation.is_ground, True)
+    np.testing.assert_array_equal(kept | segmentation.is_coarse_ground, True)
     np.testing.assert_allclose(segmentation.points, sim_scan.scan.points[segmentation.scan_index])
     np.testing.assert_allclose(segmentation.range_m, np.linalg.norm(segmentation.points, axis=1))
     # the outlier cloud: rejected cells above the ground rows, every 5th column

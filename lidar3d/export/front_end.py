@@ -1,8 +1,9 @@
 """Adapter: what the front end saw in one scan, as a folder of PCD files (``lidar3d features``).
 
 :func:`write_front_end_scan` writes the files of :data:`FRONT_END_FILES`, all in the lidar frame:
-ground points, the points of kept clusters (``label`` field: cluster id), outliers (points of
-rejected clusters), and the four feature clouds (``ring`` field). The folder is built beside its
+ground points, the lifted points (the slope tests took them for ground, the surface check did not:
+bases of objects far out), the points of kept clusters (``label`` field: cluster id), outliers
+(points of rejected clusters), and the four feature clouds (``ring`` field). The folder is built beside its
 final place and renamed, so it is either complete or absent.
 
 Only the standard library is imported at the top: the CLI reads :data:`FRONT_END_FILES` to build its
@@ -26,6 +27,7 @@ __all__ = ["FRONT_END_FILES", "write_front_end_scan"]
 
 FRONT_END_FILES = (
     "ground.pcd",
+    "lifted.pcd",
     "clusters.pcd",
     "outliers.pcd",
     "edge_sharp.pcd",
@@ -36,7 +38,7 @@ FRONT_END_FILES = (
 
 
 def write_front_end_scan(folder: Path, result: FrontEndResult) -> None:
-    """Write the seven clouds of one scan's front-end ``result`` into ``folder`` (replaced if present).
+    """Write the eight clouds of one scan's front-end ``result`` into ``folder`` (replaced if present).
 
     Raises :class:`~lidar3d.errors.OutputError` when the folder cannot be created or written.
     """
@@ -48,6 +50,7 @@ def write_front_end_scan(folder: Path, result: FrontEndResult) -> None:
     image = segmentation.image
     points = segmentation.scan.points
     ground_cells = image.point_index[segmentation.ground_mask]
+    lifted_cells = image.point_index[segmentation.lifted_mask]
     cluster_cells = segmentation.cluster_label >= 0
     outlier_cells = image.point_index[segmentation.outlier_mask]
     try:
@@ -59,6 +62,7 @@ def write_front_end_scan(folder: Path, result: FrontEndResult) -> None:
         raise OutputError(f"{folder}: cannot create a folder beside it: {err.strerror}") from err
     try:
         write_pcd(staging / "ground.pcd", points[ground_cells])
+        write_pcd(staging / "lifted.pcd", points[lifted_cells])
         write_pcd(
             staging / "clusters.pcd",
             points[image.point_index[cluster_cells]],

@@ -1,8 +1,8 @@
 """The whole front end in one call, with per-stage timing: scan -> Segmentation -> FeatureSet.
 
-:func:`prepare_scan` is what the SLAM pipeline consumes: the features plus the dense ground cloud
-(a :class:`PreparedScan`); it depends on nothing but the scan and the configuration, so an adapter
-may run it ahead in another process (:mod:`lidar3d.prefetch`).
+:func:`prepare_scan` is what the SLAM pipeline consumes: the features plus the dense
+cloud (a :class:`PreparedScan`); it depends on nothing but the scan and the configuration, so an
+adapter may run it ahead in another process (:mod:`lidar3d.prefetch`).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from lidar3d.records import Scan
 from lidar3d.segmentation import (
     Segmentation,
     assemble_segmentation,
+    classify_ground,
     cluster_cells,
-    mark_ground,
     project_scan,
     segment_scan,
     usable_rows,
@@ -73,10 +73,12 @@ def run_front_end(scan: Scan, config: Config) -> FrontEndResult:
         segmentation = segment_scan(scan, config.segmentation, config.sensor)  # logs why, returns empty
         features = FeatureSet.empty(scan.stamp_ns)
         return FrontEndResult(segmentation=segmentation, features=features, stage_ms=stage_ms)
-    ground_mask = mark_ground(image, config.segmentation, config.sensor)
+    ground_mask, lifted_mask = classify_ground(image, config.segmentation, config.sensor)
     t2 = clock()
-    cluster_label, outlier_mask = cluster_cells(image, ground_mask, config.segmentation)
-    segmentation = assemble_segmentation(scan, image, ground_mask, cluster_label, outlier_mask, config.segmentation)
+    cluster_label, outlier_mask = cluster_cells(image, ground_mask | lifted_mask, config.segmentation)
+    segmentation = assemble_segmentation(
+        scan, image, ground_mask, cluster_label, outlier_mask, config.segmentation, lifted_mask
+    )
     t3 = clock()
     smoothness = compute_smoothness(segmentation, config.features)
     t4 = clock()
@@ -95,26 +97,28 @@ class PreparedScan:
     Attributes:
         scan: the raw sweep (lidar frame, as fired: not deskewed).
         features: its LeGO-LOAM feature set (lidar frame, not deskewed).
-        ground: every ground cell of its range image as a cloud (lidar frame, not deskewed).
+        coarse_ground: every coarse-ground cell (``Segmentation.coarse_ground_mask``: ground and
+            lifted cells) of its range image as a cloud (lidar frame, not deskewed): the surfaces
+            at the ground's level that mapping registers densely.
         stage_ms: front-end milliseconds per sub-stage of :data:`STAGES`.
     """
 
     scan: Scan
     features: FeatureSet
-    ground: FeatureCloud
+    coarse_ground: FeatureCloud
     stage_ms: dict[str, float]
 
 
 def prepare_scan(scan: Scan, config: Config) -> PreparedScan:
     """Run the front end on ``scan`` (a pure function of the scan and the configuration)."""
     front = run_front_end(scan, config)
-    return PreparedScan(scan, front.features, _ground_cloud(front.segmentation), front.stage_ms)
+    return PreparedScan(scan, front.features, _coarse_ground_cloud(front.segmentation), front.stage_ms)
 
 
-def _ground_cloud(segmentation: Segmentation) -> FeatureCloud:
-    """Every ground cell of the range image as a cloud (the segmented cloud keeps only every
+def _coarse_ground_cloud(segmentation: Segmentation) -> FeatureCloud:
+    """Every coarse-ground cell of the range image as a cloud (the segmented cloud keeps only every
     fifth ground column; mapping wants the ground dense, since it fixes z, roll and pitch)."""
-    idx = segmentation.image.point_index[segmentation.ground_mask]
+    idx = segmentation.image.point_index[segmentation.coarse_ground_mask]
     idx = idx[idx >= 0]
     scan = segmentation.scan
     return FeatureCloud(np.take(scan.points, idx, axis=0), scan.ring[idx], scan.time_offset_s[idx])

@@ -214,8 +214,8 @@ def select_features(segmentation: Segmentation, smoothness: Smoothness, config: 
     curvature = smoothness.curvature
     section = smoothness.section
     n_sections = segmentation.ring_start.shape[0] * config.sections_per_ring
-    edge_candidate = smoothness.pickable & ~segmentation.is_ground & (curvature > smoothness.edge_threshold)
-    flat_candidate = smoothness.pickable & segmentation.is_ground & (curvature < config.planar_threshold)
+    edge_candidate = smoothness.pickable & ~segmentation.is_coarse_ground & (curvature > smoothness.edge_threshold)
+    flat_candidate = smoothness.pickable & segmentation.is_coarse_ground & (curvature < config.planar_threshold)
     edges, edge_bounds = _by_section(edge_candidate, section, -curvature, n_sections)
     flats, flat_bounds = _by_section(flat_candidate, section, curvature, n_sections)
 

@@ -80,11 +80,11 @@ class MovingPoints:
     def add_keyframe(self, T_world_lidar: np.ndarray) -> None:
         """The sweep last passed to :meth:`without_moving` is a keyframe at pose (4,4)
         ``T_world_lidar``: keep the range image of all its returns (moving ones too: they are where
-        its rays ended), its registration clouds and ground in its deskewed lidar frame."""
+        its rays ended), its registration clouds and coarse-ground cloud in its deskewed lidar frame."""
         if self._returns is None:
             return
         f = self._returns.features
-        clouds = (f.less_sharp, f.less_flat, f.outliers, self._returns.ground)
+        clouds = (f.less_sharp, f.less_flat, f.outliers, self._returns.coarse_ground)
         points = np.concatenate([c.points for c in clouds])
         rings = np.concatenate([c.ring for c in clouds])
         probe = SweepProbe.of_points(points, rings, T_world_lidar, len(self._elevation_rad), self._n_bins)
@@ -123,7 +123,7 @@ class MovingPoints:
         self, sweep: SweepFeatures, deskewed: SweepFeatures, T_world_guess: np.ndarray | None
     ) -> tuple[SweepFeatures, SweepFeatures]:
         """The sweep, as fired and ``deskewed``, without the feature points (every cloud but the
-        ground) that are :meth:`moving` when placed at the (4,4) guess ``T_world_guess`` (None:
+        coarse-ground one) that are :meth:`moving` when placed at the (4,4) guess ``T_world_guess`` (None:
         the first sweep, nothing to test against); the sweep is remembered for :meth:`add_keyframe`."""
         self._returns = deskewed
         if T_world_guess is None:

@@ -5,8 +5,8 @@ Mapping deskews them to the scan stamp with a body twist, more than once when a 
 of the motion over the sweep arrives, and registers or stores two clouds made from them:
 
 * corner cloud: the less-sharp edge features, voxel-downsampled;
-* surface cloud: the less-flat planar features, the cluster outliers and the dense ground,
-  voxel-downsampled (the ground fixes z, roll and pitch).
+* surface cloud: the less-flat planar features, the cluster outliers and the dense near-ground
+  cloud, voxel-downsampled (the ground fixes z, roll and pitch).
 """
 
 from __future__ import annotations
@@ -26,40 +26,41 @@ __all__ = ["SweepFeatures"]
 
 @dataclass(frozen=True, slots=True)
 class SweepFeatures:
-    """A sweep's feature set plus its dense ground cloud (lidar frame).
+    """A sweep's feature set plus its dense coarse-ground cloud (lidar frame).
 
     Attributes:
         features: edge/planar features; as fired, or deskewed when made by :meth:`deskewed`
             (time offsets are kept either way, so a sweep can be deskewed again).
-        ground: every ground cell of the range image, same frame and timing as ``features``.
+        coarse_ground: every coarse-ground cell of the range image (``PreparedScan.coarse_ground``),
+            same frame and timing as ``features``.
     """
 
     features: FeatureSet
-    ground: FeatureCloud
+    coarse_ground: FeatureCloud
 
     @classmethod
     def of(cls, prepared: PreparedScan) -> SweepFeatures:
         """The features of a front-end output, as fired."""
-        return cls(prepared.features, prepared.ground)
+        return cls(prepared.features, prepared.coarse_ground)
 
     @property
     def n_surface_points(self) -> int:
-        """Points of the surface cloud before downsampling (less-flat, outliers, ground)."""
-        return len(self.features.less_flat) + len(self.features.outliers) + len(self.ground)
+        """Points of the surface cloud before downsampling (less-flat, outliers, coarse ground)."""
+        return len(self.features.less_flat) + len(self.features.outliers) + len(self.coarse_ground)
 
     def deskewed(self, twist: np.ndarray) -> SweepFeatures:
         """Every point moved to the lidar frame at the stamp with the constant body ``twist``
         (6,) (v m/s, w rad/s); only valid on a sweep as fired."""
-        ground = FeatureCloud(
-            deskew_points(self.ground.points, self.ground.time_offset_s, twist),
-            self.ground.ring,
-            self.ground.time_offset_s,
+        coarse_ground = FeatureCloud(
+            deskew_points(self.coarse_ground.points, self.coarse_ground.time_offset_s, twist),
+            self.coarse_ground.ring,
+            self.coarse_ground.time_offset_s,
         )
-        return SweepFeatures(deskew_features(self.features, twist), ground)
+        return SweepFeatures(deskew_features(self.features, twist), coarse_ground)
 
     def without(self, moving: dict[str, np.ndarray]) -> SweepFeatures:
         """The sweep without the points marked in ``moving``: feature cloud name (``sharp``,
-        ``less_sharp``, ``flat``, ``less_flat``, ``outliers``) -> (M,) bool; the ground is kept."""
+        ``less_sharp``, ``flat``, ``less_flat``, ``outliers``) -> (M,) bool; the coarse ground is kept."""
         f = self.features
 
         def kept(name: str) -> FeatureCloud:
@@ -77,7 +78,7 @@ class SweepFeatures:
             less_flat=kept("less_flat"),
             outliers=kept("outliers"),
         )
-        return SweepFeatures(features, self.ground)
+        return SweepFeatures(features, self.coarse_ground)
 
     def registration_clouds(self, config: MappingConfig) -> tuple[np.ndarray, np.ndarray]:
         """(M,3) corner and (K,3) surface clouds, voxel-downsampled with the map's voxel sizes."""
@@ -89,7 +90,7 @@ class SweepFeatures:
         corner points, (M,) their times, (K,3) surface points, (K,) their times."""
         f = self.features
         corner, corner_time_s = voxel_downsample(f.less_sharp.points, config.corner_voxel_m, f.less_sharp.time_offset_s)
-        surfaces = (f.less_flat, f.outliers, self.ground)
+        surfaces = (f.less_flat, f.outliers, self.coarse_ground)
         surf, surf_time_s = voxel_downsample(
             np.concatenate([c.points for c in surfaces]),
             config.surf_voxel_m,

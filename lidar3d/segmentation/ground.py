@@ -23,18 +23,20 @@ change)``, so that range noise between close rows cannot tilt it), and a flat pa
    tan(``ground_height_slope_deg``).
 
 Runs continue above the ground rows (uphill roads seen by upward beams) but never start there.
-Then the surface check (``ground_surface_sector_deg`` > 0, default): the slope tests compare angles,
-and over the long gaps between the lowest beams' rings far out (34 m to 60-100 m on a VLP-16) a
-small angle makes a large height, so the base of a car or wall hit by the -1 deg beam at 60 m,
-0.75 m up, bends only 1.7 deg from flat ground. Each ground cell must also lie on the ground below it
-in its azimuth sector: at most a margin, a range term and the departure of the sector's observed
-curvature from the local line above that line (see ``_check_surface``).
-Last, a ground cell joined to the non-ground cell above it by the clustering criterion (beta >
+Then a ground cell joined to the non-ground cell above it by the clustering criterion (beta >
 ``cluster_angle_deg``: one surface) belongs to that object, unless it lies within
 ``ground_support_margin_m`` of its run's line or at the ground level (checked from the top down).
+Last, the surface check (``ground_surface_sector_deg`` > 0, default 2): the slope tests compare
+angles, and over the long gaps between the lowest beams' rings far out (34 m to 60-100 m on a
+VLP-16) a small angle makes a large height, so the base of a car or wall hit by the -1 deg beam at
+60 m, 0.75 m up, bends only 1.7 deg from flat ground. Each ground cell must also lie on the ground
+below it in its azimuth sector: at most a margin, a range term and the departure of the sector's
+observed curvature from the local line above that line (see ``_check_surface``). The cells it takes
+out are *lifted* (:func:`classify_ground`): not ground, but still surfaces at the ground's level.
 The per-pair tests are array work over the whole image; the walk up each column, which carries its
-run from row to row, is a compiled kernel (numba; with the walk as an array loop over rows the
-ground stage took 3.1 ms per VLP-16 scan, with the kernel 1.7 ms, median on ``loop``).
+run from row to row, the release and the surface check are compiled kernels (numba; with the walk
+as an array loop over rows the ground stage took 3.1 ms per VLP-16 scan, with the kernel 1.7 ms,
+median on ``loop``; the surface check as array work took 6-8 ms, compiled about 1 ms).
 """
 
 from __future__ import annotations
@@ -48,7 +50,7 @@ from lidar3d.errors import ConfigError
 from lidar3d.jit import lazy_njit
 from lidar3d.segmentation.range_image import RangeImage
 
-__all__ = ["R_base_lidar_from_mount", "ground_row_count", "mark_ground"]
+__all__ = ["R_base_lidar_from_mount", "classify_ground", "ground_row_count", "mark_ground"]
 
 
 def R_base_lidar_from_mount(mount_roll_deg: float, mount_pitch_deg: float) -> np.ndarray:
@@ -88,12 +90,23 @@ def _check(config: SegmentationConfig) -> None:
 
 def mark_ground(image: RangeImage, config: SegmentationConfig, sensor_config: SensorConfig) -> np.ndarray:
     """(R, C) bool mask of the ground cells of ``image`` (see the module doc for the tests)."""
+    return classify_ground(image, config, sensor_config)[0]
+
+
+def classify_ground(
+    image: RangeImage, config: SegmentationConfig, sensor_config: SensorConfig
+) -> tuple[np.ndarray, np.ndarray]:
+    """(R, C) bool masks of ``image``: the ground cells, and the lifted cells, those the slope tests
+    took for ground and the surface check took out of it (the bases of walls and cars far out, and
+    far ground it cannot confirm; none when the check is off). Together they are the coarse ground
+    the feature path uses (``Segmentation.coarse_ground_mask``). See the module doc."""
     _check(config)
     n_rows, n_columns = image.shape
     ground = np.zeros((n_rows, n_columns), dtype=bool)
+    lifted = np.zeros((n_rows, n_columns), dtype=bool)
     n_ground = ground_row_count(config, image.row_elevation_rad)
     if n_ground < 2:
-        return ground
+        return ground, lifted
     # continuity mode follows ground runs above the ground rows (uphill); see the module doc
     n_top = n_rows if config.ground_continuity else n_ground
     points = image.points[:n_top]  # (n_top, C, 3), NaN where empty
@@ -107,12 +120,14 @@ def mark_ground(image: RangeImage, config: SegmentationConfig, sensor_config: Se
     if not config.ground_continuity:
         ground[: n_ground - 1] |= flat
         ground[1:n_ground] |= flat
-        return ground
+        return ground, lifted
     supported = _walk_up_columns(ground, points, step, run_m, angle, flat, n_ground, config)
-    if config.ground_surface_sector_deg > 0.0:
-        _check_surface(ground, points, image.azimuth_resolution_rad, config)
     _release_contacts(image, ground, supported, config)
-    return ground
+    if config.ground_surface_sector_deg > 0.0:
+        lifted[:] = ground
+        _check_surface(ground, points, image.azimuth_resolution_rad, config)
+        lifted &= ~ground
+    return ground, lifted
 
 
 def _walk_up_columns(
@@ -251,15 +266,6 @@ def _walk_columns(
             last[:] = points[i + 1, c]
 
 
-def _sector_sum(values: np.ndarray, half_width: int) -> np.ndarray:
-    """(C, K) sums of ``values`` (C, K) over the columns ``c - half_width .. c + half_width``, wrapping."""
-    n_columns = values.shape[0]
-    half_width = min(half_width, (n_columns - 1) // 2)
-    padded = np.concatenate([values[n_columns - half_width :], values, values[:half_width]])
-    cumulative = np.concatenate([np.zeros((1, values.shape[1])), np.cumsum(padded, axis=0)])
-    return cumulative[2 * half_width + 1 :] - cumulative[:n_columns]
-
-
 def _check_surface(
     ground: np.ndarray, points: np.ndarray, azimuth_resolution_rad: float, config: SegmentationConfig
 ) -> None:
@@ -277,61 +283,93 @@ def _check_surface(
     Only heights above the line count (objects stand on the ground; a crest drops away below it).
     Cells whose sector below holds fewer than three rows of ground (the parabola is undetermined)
     or whose local rows span under a metre keep their mark. ``points``: (n_top, C, 3) level frame.
+    The walk over the rows is the compiled :func:`_surface_kernel`.
     """
-    n_top, n_columns = points.shape[:2]
-    half_width = int(round(np.deg2rad(config.ground_surface_sector_deg) / 2.0 / azimuth_resolution_rad))
-    distance = np.hypot(points[..., 0], points[..., 1])
-    height = points[..., 2]
-    tan_range = np.tan(np.deg2rad(config.ground_surface_range_slope_deg))
-    # running sums over the rows below (prefix[i]: rows 0 .. i-1) of the moments of the accepted
-    # ground cells, 1, d, d^2, d^3, d^4, z, z d, z d^2, and the number of rows holding ground in the sector
-    prefix = np.zeros((n_top + 1, n_columns, 8))
-    sector_rows = np.zeros(n_columns)
+    n_top = points.shape[0]
     rows_with_ground = np.flatnonzero(ground[:n_top].any(axis=1))
-    for i in range(int(rows_with_ground[-1]) + 1 if rows_with_ground.size else 0):
-        on_row = ground[i]
-        if i >= 3 and on_row.any():
-            first_local = max(i - config.ground_surface_rows, 0)
-            sector = _sector_sum(np.concatenate([prefix[i], prefix[i] - prefix[first_local]], axis=1), half_width)
-            columns = np.flatnonzero(on_row & (sector_rows >= 3))
-            keep = _on_surface(
-                sector[columns, :8], sector[columns, 8:], distance[i, columns], height[i, columns], tan_range, config
-            )
-            on_row[columns[~keep]] = False
-        d, z = np.where(on_row, distance[i], 0.0), np.where(on_row, height[i], 0.0)
-        one = on_row.astype(np.float64)
-        prefix[i + 1] = prefix[i] + np.stack([one, d, d**2, d**3, d**4, z, z * d, z * d**2], axis=1)
-        sector_rows += _sector_sum(one[:, None], half_width)[:, 0] > 0
+    if rows_with_ground.size == 0:
+        return
+    half_width = int(round(np.deg2rad(config.ground_surface_sector_deg) / 2.0 / azimuth_resolution_rad))
+    _surface_kernel(
+        ground,
+        np.hypot(points[..., 0], points[..., 1]),
+        np.ascontiguousarray(points[..., 2]),
+        int(rows_with_ground[-1]) + 1,
+        min(half_width, (points.shape[1] - 1) // 2),
+        config.ground_surface_rows,
+        config.ground_surface_margin_m,
+        float(np.tan(np.deg2rad(config.ground_surface_range_slope_deg))),
+    )
 
 
-def _on_surface(
-    below: np.ndarray,
-    local: np.ndarray,
+@lazy_njit
+def _surface_kernel(
+    ground: np.ndarray,
     distance: np.ndarray,
     height: np.ndarray,
+    n_walked: int,
+    half_width: int,
+    n_local_rows: int,
+    margin_m: float,
     tan_range: float,
-    config: SegmentationConfig,
-) -> np.ndarray:
-    """(M,) bool: each cell lies within the tolerance of its sector's surface (see ``_check_surface``).
+) -> None:
+    """The walk of :func:`_check_surface` over rows ``0 .. n_walked-1``, unmarking ``ground`` (R, C)
+    in place. ``distance``, ``height``: (n_top, C) horizontal distance and level-frame height.
 
-    ``below``, ``local``: (M, 8) moment sums of the sector's ground below and on the local rows.
+    ``prefix[i]`` (C, 8) holds, per column, the sums over the accepted ground of rows 0 .. i-1 of
+    the moments 1, d, d^2, d^3, d^4, z, z d, z d^2; a sector's sums are differences of a running
+    sum along the columns (the sector wraps around the seam).
     """
-    s0, s1, s2, s3, s4, t0, t1, t2 = below.T
-    # least-squares parabola z = a + b d + c d^2: c by Cramer's rule on the normal equations
-    determinant = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
-    determined = np.abs(determinant) > 1e-9 * s0 * s2 * s4
-    numerator = s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s2 * t1) + t0 * (s1 * s3 - s2 * s2)
-    n, sum_d, sum_dd, sum_z, sum_zd = local[:, 0], local[:, 1], local[:, 2], local[:, 5], local[:, 6]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d0, z0 = sum_d / n, sum_z / n
-        spread = sum_dd - n * d0**2
-        slope = (sum_zd - n * d0 * z0) / spread
-        offset = distance - d0
-        above_m = height - (z0 + slope * offset)
-        curvature = numerator / determinant
-        tolerance = config.ground_surface_margin_m + distance * tan_range + np.abs(curvature) * offset**2
-        fitted = determined & (n >= 3) & (spread >= n * 1.0)
-        return ~fitted | (above_m <= tolerance)
+    n_columns = ground.shape[1]
+    width = 2 * half_width + 1
+    prefix = np.zeros((n_walked + 1, n_columns, 8))
+    sector_rows = np.zeros(n_columns, np.int64)  # rows holding ground in each column's sector
+    running = np.zeros((n_columns + width, 16))  # running[k]: sum of the first k padded columns
+    for i in range(n_walked):
+        if i >= 3:
+            first_local = max(i - n_local_rows, 0)
+            for k in range(n_columns + width - 1):
+                column = (k - half_width) % n_columns
+                for m in range(8):
+                    running[k + 1, m] = running[k, m] + prefix[i, column, m]
+                    running[k + 1, 8 + m] = running[k, 8 + m] + (prefix[i, column, m] - prefix[first_local, column, m])
+            for c in range(n_columns):
+                if not ground[i, c] or sector_rows[c] < 3:
+                    continue
+                a, b = running[c + width], running[c]  # the sector's moments below, then local
+                s0, s1, s2, s3, s4 = a[0] - b[0], a[1] - b[1], a[2] - b[2], a[3] - b[3], a[4] - b[4]
+                t0, t1, t2 = a[5] - b[5], a[6] - b[6], a[7] - b[7]
+                n, sum_d, sum_dd, sum_z, sum_zd = a[8] - b[8], a[9] - b[9], a[10] - b[10], a[13] - b[13], a[14] - b[14]
+                # least-squares parabola z = a + b d + c d^2: its c by Cramer's rule on the normal equations
+                determinant = s0 * (s2 * s4 - s3 * s3) - s1 * (s1 * s4 - s3 * s2) + s2 * (s1 * s3 - s2 * s2)
+                if n < 3 or not abs(determinant) > 1e-9 * s0 * s2 * s4:
+                    continue  # undetermined: the mark stays
+                d0, z0 = sum_d / n, sum_z / n
+                spread = sum_dd - n * d0**2
+                if not spread >= n * 1.0:
+                    continue  # the local rows span under a metre
+                numerator = s0 * (s2 * t2 - s3 * t1) - s1 * (s1 * t2 - s2 * t1) + t0 * (s1 * s3 - s2 * s2)
+                slope = (sum_zd - n * d0 * z0) / spread
+                offset = distance[i, c] - d0
+                above_m = height[i, c] - (z0 + slope * offset)
+                tolerance = margin_m + distance[i, c] * tan_range + abs(numerator / determinant) * offset**2
+                if not above_m <= tolerance:
+                    ground[i, c] = False
+        for c in range(n_columns):
+            for m in range(8):
+                prefix[i + 1, c, m] = prefix[i, c, m]
+            if ground[i, c]:
+                d, z = distance[i, c], height[i, c]
+                moments = (1.0, d, d * d, d**3, d**4, z, z * d, z * d * d)
+                for m in range(8):
+                    prefix[i + 1, c, m] += moments[m]
+        count = 0  # ground columns in the window of column c, slid along the row (wrapping)
+        for j in range(-half_width, half_width + 1):
+            count += int(ground[i, j % n_columns])
+        for c in range(n_columns):
+            if count > 0:
+                sector_rows[c] += 1
+            count += int(ground[i, (c + half_width + 1) % n_columns]) - int(ground[i, (c - half_width) % n_columns])
 
 
 def _release_contacts(image: RangeImage, ground: np.ndarray, supported: np.ndarray, config: SegmentationConfig) -> None:
