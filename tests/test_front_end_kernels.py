@@ -354,45 +354,42 @@ def test_ground_walk_is_that_of_the_row_by_row_array_walk(scans, monkeypatch):
     assert len(n_calls) == len(scans) and min(n_calls) > 5_000  # each scan walked, much ground found
 
 
+def _unmarked_as_by_reference(monkeypatch, scans, name, reference, mask_arg, segmentation_config):
+    """Run ``mark_ground`` on ``scans`` with ``ground.<name>`` checked against ``reference`` (the same
+    arguments, the mask the ``mask_arg``-th, unmarked in place) at every call; the cells each call
+    unmarked."""
+    compiled = getattr(ground, name)
+    unmarked = []
+
+    def both(*args):
+        mask = args[mask_arg]
+        expected = mask.copy()
+        before = int(mask.sum())
+        compiled(*args)
+        reference(*args[:mask_arg], expected, *args[mask_arg + 1 :])
+        np.testing.assert_array_equal(mask, expected)
+        unmarked.append(before - int(mask.sum()))
+
+    monkeypatch.setattr(ground, name, both)
+    sensor = Config().sensor
+    for scan in scans:
+        mark_ground(project_scan(scan, sensor, segmentation_config), segmentation_config, sensor)
+    return unmarked
+
+
 def test_ground_contacts_are_released_as_by_the_row_by_row_array_walk(scans, monkeypatch):
     """Every release of ground contacts during ``mark_ground`` unmarks what the array version does."""
-    compiled = ground._release_contacts
-    n_released = []
-
-    def both(image, ground_mask, supported, config):
-        reference = ground_mask.copy()
-        before = int(ground_mask.sum())
-        compiled(image, ground_mask, supported, config)
-        _reference_release(image, reference, supported, config)
-        np.testing.assert_array_equal(ground_mask, reference)
-        n_released.append(before - int(ground_mask.sum()))
-
-    monkeypatch.setattr(ground, "_release_contacts", both)
-    config = Config()
-    for scan in scans:
-        mark_ground(project_scan(scan, config.sensor, config.segmentation), config.segmentation, config.sensor)
-    assert len(n_released) == len(scans) and sum(n_released) > 0  # contacts were released
+    released = _unmarked_as_by_reference(
+        monkeypatch, scans, "_release_contacts", _reference_release, 1, Config().segmentation
+    )
+    assert len(released) == len(scans) and sum(released) > 0  # contacts were released
 
 
 def test_ground_surface_check_is_that_of_the_row_by_row_array_check(scans, monkeypatch):
     """Every surface check during ``mark_ground`` (check on) unmarks what the array version does."""
-    compiled = ground._check_surface
-    n_unmarked = []
-
-    def both(ground_mask, points, azimuth_resolution_rad, config):
-        reference = ground_mask.copy()
-        before = int(ground_mask.sum())
-        compiled(ground_mask, points, azimuth_resolution_rad, config)
-        _reference_check_surface(reference, points, azimuth_resolution_rad, config)
-        np.testing.assert_array_equal(ground_mask, reference)
-        n_unmarked.append(before - int(ground_mask.sum()))
-
-    monkeypatch.setattr(ground, "_check_surface", both)
-    config = Config()
-    segmentation = dataclasses.replace(config.segmentation, ground_surface_sector_deg=2.0)
-    for scan in scans:
-        mark_ground(project_scan(scan, config.sensor, segmentation), segmentation, config.sensor)
-    assert len(n_unmarked) == len(scans) and sum(n_unmarked) > 0  # cells were taken out of the ground
+    segmentation = dataclasses.replace(Config().segmentation, ground_surface_sector_deg=2.0)
+    lifted = _unmarked_as_by_reference(monkeypatch, scans, "_check_surface", _reference_check_surface, 0, segmentation)
+    assert len(lifted) == len(scans) and sum(lifted) > 0  # cells were taken out of the ground
 
 
 def test_smoothness_is_that_of_the_array_expressions(scans):

@@ -9,13 +9,14 @@ import pytest
 from frontend_sim import cell_truth, simulation
 
 from lidar3d.config import Config
-from lidar3d.features import prepare_scan
+from lidar3d.features import prepare_scan, run_front_end
 from lidar3d.records import Scan
 from lidar3d.segmentation import segment_scan
 from lidar3d.sensors import VLP16
 
 OFF = dataclasses.replace(Config().segmentation, ground_surface_sector_deg=0.0)  # the slope tests alone
 CONFIG = dataclasses.replace(Config(), segmentation=dataclasses.replace(OFF, ground_surface_sector_deg=2.0))
+OFF_CONFIG = dataclasses.replace(CONFIG, segmentation=OFF)
 SENSOR_HEIGHT_M = 1.8
 
 
@@ -132,9 +133,20 @@ def test_lifted_cells_leave_the_ground_label_only():
     assert lifted.sum() >= 20 and not (lifted & ground).any()
     assert not is_ground[segmentation.image.point_index[lifted]].any()  # all of them the box's base
     assert not segment_scan(scan, OFF, CONFIG.sensor).lifted_mask.any()
-    # the features and mapping's dense cloud are made from the coarse ground, as without the check
-    with_check = prepare_scan(scan, CONFIG)
-    without = prepare_scan(scan, dataclasses.replace(CONFIG, segmentation=OFF))
-    np.testing.assert_array_equal(with_check.coarse_ground.points, without.coarse_ground.points)
-    for name in ("sharp", "less_sharp", "flat", "less_flat", "outliers"):
-        np.testing.assert_array_equal(getattr(with_check.features, name).points, getattr(without.features, name).points)
+    # the features and mapping's dense cloud are made from the coarse ground, as without the check;
+    # the SLAM's front end (prepare_scan) skips the check, and gets the same
+    labelled = run_front_end(scan, CONFIG)
+    np.testing.assert_array_equal(labelled.segmentation.ground_mask, ground)
+    for unlabelled in (run_front_end(scan, CONFIG, ground_label=False), run_front_end(scan, OFF_CONFIG)):
+        assert not unlabelled.segmentation.lifted_mask.any()
+        np.testing.assert_array_equal(
+            unlabelled.segmentation.coarse_ground_mask, labelled.segmentation.coarse_ground_mask
+        )
+        for name in ("sharp", "less_sharp", "flat", "less_flat", "outliers"):
+            np.testing.assert_array_equal(
+                getattr(labelled.features, name).points, getattr(unlabelled.features, name).points
+            )
+    prepared = prepare_scan(scan, CONFIG)
+    coarse_cells = labelled.segmentation.image.point_index[labelled.segmentation.coarse_ground_mask]
+    np.testing.assert_array_equal(prepared.coarse_ground.points, scan.points[coarse_cells])
+    np.testing.assert_array_equal(prepared.features.less_flat.points, labelled.features.less_flat.points)

@@ -88,18 +88,25 @@ def _check(config: SegmentationConfig) -> None:
         )
 
 
-def mark_ground(image: RangeImage, config: SegmentationConfig, sensor_config: SensorConfig) -> np.ndarray:
-    """(R, C) bool mask of the ground cells of ``image`` (see the module doc for the tests)."""
-    return classify_ground(image, config, sensor_config)[0]
+def mark_ground(
+    image: RangeImage, config: SegmentationConfig, sensor_config: SensorConfig, *, surface_check: bool = True
+) -> np.ndarray:
+    """(R, C) bool mask of the ground cells of ``image`` (see the module doc for the tests); with
+    ``surface_check=False`` the coarse ground (:func:`classify_ground`)."""
+    return classify_ground(image, config, sensor_config, surface_check=surface_check)[0]
 
 
 def classify_ground(
-    image: RangeImage, config: SegmentationConfig, sensor_config: SensorConfig
+    image: RangeImage, config: SegmentationConfig, sensor_config: SensorConfig, *, surface_check: bool = True
 ) -> tuple[np.ndarray, np.ndarray]:
     """(R, C) bool masks of ``image``: the ground cells, and the lifted cells, those the slope tests
     took for ground and the surface check took out of it (the bases of walls and cars far out, and
     far ground it cannot confirm; none when the check is off). Together they are the coarse ground
-    the feature path uses (``Segmentation.coarse_ground_mask``). See the module doc."""
+    the feature path uses (``Segmentation.coarse_ground_mask``). See the module doc.
+
+    ``surface_check=False`` skips the check whatever the configuration says (the ground is then the
+    coarse ground, no cell lifted): for callers that use the coarse ground only (the SLAM's front
+    end, the grid), which saves its 0.6 ms a scan."""
     _check(config)
     n_rows, n_columns = image.shape
     ground = np.zeros((n_rows, n_columns), dtype=bool)
@@ -123,7 +130,7 @@ def classify_ground(
         return ground, lifted
     supported = _walk_up_columns(ground, points, step, run_m, angle, flat, n_ground, config)
     _release_contacts(image, ground, supported, config)
-    if config.ground_surface_sector_deg > 0.0:
+    if surface_check and config.ground_surface_sector_deg > 0.0:
         lifted[:] = ground
         _check_surface(ground, points, image.azimuth_resolution_rad, config)
         lifted &= ~ground
