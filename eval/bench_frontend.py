@@ -44,13 +44,13 @@ def bench(scenario: str, sensor: str, n_scans: int, seed: int) -> dict:
         raise SystemExit(f"scenario {scenario} has only {len(sim)} scans")
     scans = [s.scan for s in sim.scans(0, n_scans)]
     config = replace(Config(), sensor=replace(Config().sensor, model=sensor))
-    run_front_end(scans[0], config, ground_label=False)  # warm-up: imports, first allocations
+    run_front_end(scans[0], config, surface_check=False)  # warm-up: imports, first allocations
     per_stage: dict[str, list[float]] = {stage: [] for stage in STAGES}
     totals, cpu = [], []
     features = {"sharp": 0, "less_sharp": 0, "flat": 0, "less_flat": 0}
     for scan in scans:
         began = time.process_time()
-        result = run_front_end(scan, config, ground_label=False)
+        result = run_front_end(scan, config, surface_check=False)
         cpu.append((time.process_time() - began) * 1e3)
         for stage in STAGES:
             per_stage[stage].append(result.stage_ms[stage])

@@ -280,8 +280,8 @@ class SegmentationConfig:
         0.04, _closed(0.0, 1.0, "m"), "contact: ground this close to its run's line stays ground"
     )
     ground_noise_m: float = _key(0.05, _closed(0.0, 1.0, "m"), "continuity: height steps this small pass at any angle")
-    # Ground precision at long range 0.972 -> 0.984 on the realistic scenarios; the cells it lifts
-    # off the ground stay in mapping's dense cloud (docs/stages/segmentation.md).
+    # Ground precision 0.972 -> 0.984 on the realistic scenarios. A label only: the cells it lifts
+    # stay coarse ground for the features, mapping and the grid (docs/stages/segmentation.md).
     ground_surface_sector_deg: float = _key(
         2.0,
         _closed(0.0, 90.0, "deg"),

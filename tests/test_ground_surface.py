@@ -137,7 +137,7 @@ def test_lifted_cells_leave_the_ground_label_only():
     # the SLAM's front end (prepare_scan) skips the check, and gets the same
     labelled = run_front_end(scan, CONFIG)
     np.testing.assert_array_equal(labelled.segmentation.ground_mask, ground)
-    for unlabelled in (run_front_end(scan, CONFIG, ground_label=False), run_front_end(scan, OFF_CONFIG)):
+    for unlabelled in (run_front_end(scan, CONFIG, surface_check=False), run_front_end(scan, OFF_CONFIG)):
         assert not unlabelled.segmentation.lifted_mask.any()
         np.testing.assert_array_equal(
             unlabelled.segmentation.coarse_ground_mask, labelled.segmentation.coarse_ground_mask

@@ -1,7 +1,7 @@
 """The whole front end in one call, with per-stage timing: scan -> Segmentation -> FeatureSet.
 
 :func:`prepare_scan` is what the SLAM pipeline consumes: the features plus the dense
-cloud (a :class:`PreparedScan`); it depends on nothing but the scan and the configuration, so an
+coarse-ground cloud (a :class:`PreparedScan`); it depends on nothing but the scan and the configuration, so an
 adapter may run it ahead in another process (:mod:`lidar3d.prefetch`).
 """
 
@@ -57,11 +57,11 @@ class FrontEndResult:
         return float(sum(self.stage_ms.values()))
 
 
-def run_front_end(scan: Scan, config: Config, *, ground_label: bool = True) -> FrontEndResult:
+def run_front_end(scan: Scan, config: Config, *, surface_check: bool = True) -> FrontEndResult:
     """Run ``segment_scan`` then ``extract_features`` on ``scan``, timing each sub-stage.
 
     Same result as the two calls; an empty, single-ring or all-out-of-range scan gives an empty
-    segmentation and an empty feature set, with a warning logged. ``ground_label=False`` skips the
+    segmentation and an empty feature set, with a warning logged. ``surface_check=False`` skips the
     ground surface check, which only separates the lifted cells from the ground label: the features
     are the same, the segmentation's ground is then the coarse ground (:func:`prepare_scan`).
     """
@@ -75,7 +75,7 @@ def run_front_end(scan: Scan, config: Config, *, ground_label: bool = True) -> F
         segmentation = segment_scan(scan, config.segmentation, config.sensor)  # logs why, returns empty
         features = FeatureSet.empty(scan.stamp_ns)
         return FrontEndResult(segmentation=segmentation, features=features, stage_ms=stage_ms)
-    ground_mask, lifted_mask = classify_ground(image, config.segmentation, config.sensor, surface_check=ground_label)
+    ground_mask, lifted_mask = classify_ground(image, config.segmentation, config.sensor, surface_check=surface_check)
     t2 = clock()
     cluster_label, outlier_mask = cluster_cells(image, ground_mask | lifted_mask, config.segmentation)
     segmentation = assemble_segmentation(
@@ -114,7 +114,7 @@ class PreparedScan:
 def prepare_scan(scan: Scan, config: Config) -> PreparedScan:
     """Run the front end on ``scan`` (a pure function of the scan and the configuration). The SLAM
     reads the coarse ground only, so the ground label's surface check is skipped (0.6 ms a scan)."""
-    front = run_front_end(scan, config, ground_label=False)
+    front = run_front_end(scan, config, surface_check=False)
     return PreparedScan(scan, front.features, _coarse_ground_cloud(front.segmentation), front.stage_ms)
 
 

@@ -5,7 +5,7 @@ Mapping deskews them to the scan stamp with a body twist, more than once when a 
 of the motion over the sweep arrives, and registers or stores two clouds made from them:
 
 * corner cloud: the less-sharp edge features, voxel-downsampled;
-* surface cloud: the less-flat planar features, the cluster outliers and the dense near-ground
+* surface cloud: the less-flat planar features, the cluster outliers and the dense coarse-ground
   cloud, voxel-downsampled (the ground fixes z, roll and pitch).
 """
 
