@@ -392,7 +392,9 @@ class MappingConfig:
     )
     submap_radius_m: float = _key(50.0, _positive(10000.0, "m"), "keyframes this near form the submap")
     submap_max_keyframes: int = _key(60, _closed(1, 100_000), "nearest keyframes in the submap at most")
-    submap_recent_keyframes: int = _key(10, _closed(0, 100_000), "latest keyframes always in the submap")
+    submap_recent_keyframes: int = _key(
+        10, _closed(0, 100_000), "latest keyframes always in the submap (a run keeps only their clouds in memory)"
+    )
     # a submap holds at most max + recent keyframes (70): a cache beyond that keeps clouds a rebuild
     # does not ask for (0.1 MB each) to save a transform (~30 us) when the drive comes back to them
     submap_cache_keyframes: int = _key(100, _closed(0, 1_000_000), "world-frame keyframe clouds kept in memory")

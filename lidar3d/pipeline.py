@@ -38,7 +38,7 @@ from lidar3d.loop.records import LoopCandidate
 from lidar3d.map_process import DenseMapProcess
 from lidar3d.mapping.dense_map import DenseMap, MapClouds
 from lidar3d.mapping.health import HealthFlag, HealthMonitor, ScanHealth, scan_measures, summarize_health
-from lidar3d.mapping.keyframes import Keyframe, KeyframeSelector, Submap
+from lidar3d.mapping.keyframes import Keyframe, KeyframeCloudStore, KeyframeSelector, Submap
 from lidar3d.mapping.map_pieces import MapPieces, PieceStore
 from lidar3d.mapping.moving_points import MovingPoints
 from lidar3d.mapping.pose_uncertainty import PoseUncertainty
@@ -134,12 +134,21 @@ class SlamResult:
 class SlamPipeline:
     """Call :meth:`process` per scan, :meth:`finish` at the end of the input, then :meth:`result`.
     ``piece_store``: where the map's pieces wait when loop closure is on (default: in memory);
-    ``map_in_process``: the same map built in a child process (:mod:`lidar3d.map_process`)."""
+    ``map_in_process``: the same map built in a child process (:mod:`lidar3d.map_process`);
+    ``keyframe_clouds``: where the clouds of keyframes older than the submap's latest ones wait
+    (default: in memory; :class:`~lidar3d.mapping.keyframes.Submap`)."""
 
-    def __init__(self, config: Config, piece_store: PieceStore | None = None, *, map_in_process: bool = False) -> None:
+    def __init__(
+        self,
+        config: Config,
+        piece_store: PieceStore | None = None,
+        *,
+        map_in_process: bool = False,
+        keyframe_clouds: KeyframeCloudStore | None = None,
+    ) -> None:
         self.config = config
         mp = config.mapping
-        self.submap = Submap.of_config(mp)
+        self.submap = Submap.of_config(mp, keyframe_clouds)
         self.moving_points = MovingPoints.of_config(config)
         self.tracker = Tracker(config, self.submap, self.moving_points)
         self.keyframe_selector = KeyframeSelector(
@@ -246,7 +255,6 @@ class SlamPipeline:
         leaves the map's clouds empty: a checkpoint that does not write the map does not fetch it
         (from the map's process: the whole map copied across, tens of MB, each time).
         """
-        keyframes = self.submap.keyframes
         clouds = self._map.clouds() if with_map else MapClouds.empty()
         trajectory = _trajectory_of(self._estimates)
         scan_indices = np.array([e.scan_index for e in self._estimates], dtype=np.int64)
@@ -255,10 +263,8 @@ class SlamPipeline:
         return SlamResult(
             trajectory=trajectory,
             odometry=_trajectory_of(self._estimates, odometry=True),
-            keyframes=Trajectory(
-                np.array([kf.stamp_ns for kf in keyframes], dtype=np.int64), self.submap.poses.reshape(-1, 4, 4)
-            ),
-            keyframe_scan_indices=np.array([kf.scan_index for kf in keyframes], dtype=np.int64),
+            keyframes=Trajectory(self.submap.stamps_ns, self.submap.poses.reshape(-1, 4, 4)),
+            keyframe_scan_indices=self.submap.scan_indices,
             scan_indices=scan_indices,
             map_points=clouds.points,
             map_intensity=clouds.intensity,
@@ -323,7 +329,7 @@ class SlamPipeline:
         self.submap.set_poses(update.poses)
         if self.moving_points is not None:
             self.moving_points.clear()  # the keyframes whose rays it holds moved
-        keyframe_stamps = np.array([kf.stamp_ns for kf in self.submap.keyframes], dtype=np.int64)
+        keyframe_stamps = self.submap.stamps_ns
         before = _trajectory_of(self._estimates)
         corrected = correct_scan_poses(
             before.stamps_ns, before.T_world_lidar, keyframe_stamps, update.previous_poses, update.poses

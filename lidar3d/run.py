@@ -43,6 +43,7 @@ from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import ConfigError, Lidar3dError, OutputError
 from lidar3d.io.atomic import write_bytes_atomic, write_text_atomic
 from lidar3d.io.health_csv import write_health_csv
+from lidar3d.io.keyframe_spill import SpilledKeyframeClouds
 from lidar3d.io.packet_source import input_config
 from lidar3d.io.pcd import write_pcd
 from lidar3d.io.piece_spill import SpilledPieceStore
@@ -309,7 +310,9 @@ def run_bag(
     # With loop closure the map is also kept in pieces (to move with the keyframes), spilled to disk
     # (by the map's own process when it has one).
     piece_store = SpilledPieceStore() if config.loop.enabled and not prefetch else None
-    pipeline = SlamPipeline(config, piece_store, map_in_process=prefetch)
+    # The clouds of keyframes the tracking has left behind wait on disk too (read back on a revisit).
+    keyframe_clouds = SpilledKeyframeClouds()
+    pipeline = SlamPipeline(config, piece_store, map_in_process=prefetch, keyframe_clouds=keyframe_clouds)
     publisher = _RunPublisher(out, config)
     read_ms: list[float] = []
     t_start = time.perf_counter()
@@ -382,6 +385,7 @@ def run_bag(
                 log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
         if piece_store is not None:
             piece_store.close()
+        keyframe_clouds.close()
 
     if span_log is not None:
         span = _SpanInputs.read(span_log, T_imu_lidar, config)

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Protocol, overload
 
 import numpy as np
 
@@ -14,7 +16,7 @@ from lidar3d.mapping.registration import LineMap, PlaneMap
 from lidar3d.mapping.se3 import invert, transform_points
 from lidar3d.mapping.voxel import KeyedCloud, voxel_downsample_parts
 
-__all__ = ["Keyframe", "KeyframeSelector", "Submap", "SubmapTarget"]
+__all__ = ["Keyframe", "KeyframeCloudStore", "KeyframeSelector", "Submap", "SubmapTarget"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +45,23 @@ class Keyframe:
     surf_points: np.ndarray
     step_covariance: np.ndarray | None = None
     placed_lost: bool = False
+
+
+class KeyframeCloudStore(Protocol):
+    """Where a :class:`Submap` keeps the clouds of keyframes older than its resident ones (spilled
+    to disk by an adapter: :class:`lidar3d.io.keyframe_spill.SpilledKeyframeClouds`). What comes
+    back must be what was put, to the bit: the registrations read it again."""
+
+    def put(self, keyframe: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
+        """Keep keyframe ``keyframe``'s (M,3) corner and (K,3) surface points (lidar frame); a later
+        put for the same keyframe replaces them."""
+
+    def get(self, keyframe: int) -> tuple[np.ndarray, np.ndarray]:
+        """The (M,3) corner and (K,3) surface points put for ``keyframe``."""
+
+
+_NO_POINTS = np.zeros((0, 3), np.float32)
+_NO_POINTS.flags.writeable = False
 
 
 class KeyframeSelector:
@@ -98,6 +117,10 @@ class Submap:
     least recently used dropped); the cache is invalidated when poses are corrected.
     :attr:`revision` counts the changes to keyframes already in it (clouds replaced, poses
     corrected; not keyframes added): correspondences found in it hold while it is unchanged.
+
+    With a ``cloud_store``, the lidar-frame clouds of all but the ``resident`` latest keyframes
+    live there (on disk in a run) and are read back when needed: when a keyframe enters the
+    world-cloud cache again, and by the loop verification through :attr:`keyframes`.
     """
 
     def __init__(
@@ -112,6 +135,8 @@ class Submap:
         rebuild_every_keyframes: int = 1,
         plane_neighbours: int = 5,
         plane_max_distance_m: float = 1.0,
+        cloud_store: KeyframeCloudStore | None = None,
+        resident: int = 10,
     ) -> None:
         self.radius_m = radius_m
         self.max_keyframes = max_keyframes
@@ -124,14 +149,18 @@ class Submap:
         self.plane_max_distance_m = plane_max_distance_m
         self._added_since_build = 0
         self.revision = 0
-        self.keyframes: list[Keyframe] = []
+        self.cloud_store = cloud_store
+        self.resident = max(1, resident)
+        self._keyframes: list[Keyframe] = []  # a stored keyframe's record holds no points
+        self._stored: list[bool] = []
         self._poses: list[np.ndarray] = []
         self._cache: OrderedDict[int, tuple[KeyedCloud, KeyedCloud]] = OrderedDict()
         self._target: SubmapTarget | None = None
 
     @classmethod
-    def of_config(cls, mp: MappingConfig) -> Submap:
-        """The submap of the ``[mapping]`` section."""
+    def of_config(cls, mp: MappingConfig, cloud_store: KeyframeCloudStore | None = None) -> Submap:
+        """The submap of the ``[mapping]`` section, older keyframes' clouds in ``cloud_store``
+        (the latest ``submap_recent_keyframes`` stay resident)."""
         return cls(
             radius_m=mp.submap_radius_m,
             max_keyframes=mp.submap_max_keyframes,
@@ -142,10 +171,37 @@ class Submap:
             rebuild_every_keyframes=mp.submap_rebuild_every_keyframes,
             plane_neighbours=mp.plane_neighbours,
             plane_max_distance_m=mp.plane_max_distance_m,
+            cloud_store=cloud_store,
+            resident=mp.submap_recent_keyframes,
         )
 
     def __len__(self) -> int:
-        return len(self.keyframes)
+        return len(self._keyframes)
+
+    @property
+    def keyframes(self) -> Sequence[Keyframe]:
+        """Every keyframe so far, with its clouds (read back from the store for older ones, when
+        an item is taken)."""
+        return _KeyframeSequence(self)
+
+    @property
+    def stamps_ns(self) -> np.ndarray:
+        """(K,) int64 keyframe stamps (no clouds read)."""
+        return np.array([kf.stamp_ns for kf in self._keyframes], dtype=np.int64)
+
+    @property
+    def scan_indices(self) -> np.ndarray:
+        """(K,) int64 input scan index of each keyframe (no clouds read)."""
+        return np.array([kf.scan_index for kf in self._keyframes], dtype=np.int64)
+
+    def keyframe(self, k: int) -> Keyframe:
+        """Keyframe ``k`` (negative counts from the latest) with its clouds."""
+        kf = self._keyframes[k]
+        if not self._stored[k]:
+            return kf
+        assert self.cloud_store is not None
+        corner, surf = self.cloud_store.get(kf.index)
+        return dataclasses.replace(kf, corner_points=corner, surf_points=surf)
 
     @property
     def poses(self) -> np.ndarray:
@@ -154,27 +210,45 @@ class Submap:
 
     def anchor(self) -> MapAnchor:
         """The keyframe a sweep placed now follows in the dense map: the latest one, at its current pose."""
-        if not self.keyframes:
+        if not self._keyframes:
             return MapAnchor(None, np.eye(4))
-        return MapAnchor(len(self.keyframes) - 1, self._poses[-1])
+        return MapAnchor(len(self._keyframes) - 1, self._poses[-1])
 
     def add(self, keyframe: Keyframe) -> None:
-        self.keyframes.append(keyframe)
+        """Append ``keyframe`` (its ``index`` the next number); with a cloud store, the keyframe
+        that now falls out of the resident ones hands its clouds to the store."""
+        if keyframe.index != len(self._keyframes):
+            raise ValueError(f"keyframe {keyframe.index} added as number {len(self._keyframes)}")
+        self._keyframes.append(keyframe)
+        self._stored.append(False)
         self._poses.append(np.array(keyframe.T_world_lidar))
         self._added_since_build += 1
+        oldest_resident = len(self._keyframes) - self.resident
+        if self.cloud_store is not None and oldest_resident > 0:
+            self._store_clouds(oldest_resident - 1, self._keyframes[oldest_resident - 1])
+
+    def _store_clouds(self, k: int, keyframe: Keyframe) -> None:
+        """Keyframe ``k``'s clouds to the store; its record keeps the rest."""
+        assert self.cloud_store is not None
+        self.cloud_store.put(k, keyframe.corner_points, keyframe.surf_points)
+        self._keyframes[k] = dataclasses.replace(keyframe, corner_points=_NO_POINTS, surf_points=_NO_POINTS)
+        self._stored[k] = True
 
     def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
         """Replace keyframe ``k``'s clouds (e.g. once a better deskewing motion is known)."""
-        old = self.keyframes[k]
-        self.keyframes[k] = dataclasses.replace(old, corner_points=corner_points, surf_points=surf_points)
+        new = dataclasses.replace(self._keyframes[k], corner_points=corner_points, surf_points=surf_points)
+        if self._stored[k]:
+            self._store_clouds(k, new)
+        else:
+            self._keyframes[k] = new
         self._cache.pop(k, None)
         self._target = None
         self.revision += 1
 
     def set_poses(self, poses: np.ndarray) -> None:
         """Replace all keyframe poses (after a pose-graph correction) and drop the cache."""
-        if len(poses) != len(self.keyframes):
-            raise ValueError(f"expected {len(self.keyframes)} poses, got {len(poses)}")
+        if len(poses) != len(self._keyframes):
+            raise ValueError(f"expected {len(self._keyframes)} poses, got {len(poses)}")
         self._poses = [np.array(p) for p in poses]
         self._cache.clear()
         self._target = None
@@ -187,7 +261,7 @@ class Submap:
         if cached is not None:
             self._cache.move_to_end(k)
             return cached
-        kf = self.keyframes[k]
+        kf = self.keyframe(k)
         T = self._poses[k]
         clouds = (
             KeyedCloud.of(transform_points(T, kf.corner_points.astype(np.float64)), self.corner_voxel_m),
@@ -200,7 +274,7 @@ class Submap:
 
     def select(self, position_m: np.ndarray) -> tuple[int, ...]:
         """Keyframe indices forming the submap around ``position_m``."""
-        n = len(self.keyframes)
+        n = len(self._keyframes)
         if n == 0:
             return ()
         positions = np.array([p[:3, 3] for p in self._poses])
@@ -219,7 +293,7 @@ class Submap:
         """
         selection = self.select(position_m)
         if self._target is not None and self._added_since_build < self.rebuild_every_keyframes:
-            newest = set(range(len(self.keyframes) - self._added_since_build, len(self.keyframes)))
+            newest = set(range(len(self._keyframes) - self._added_since_build, len(self._keyframes)))
             if set(selection) <= set(self._target.keyframe_indices) | newest:
                 return self._target
         self._added_since_build = 0
@@ -240,4 +314,26 @@ class Submap:
         while the tracker was lost (:attr:`Keyframe.placed_lost`); 0 before any target."""
         if self._target is None:
             return 0
-        return sum(self.keyframes[k].placed_lost for k in self._target.keyframe_indices)
+        return sum(self._keyframes[k].placed_lost for k in self._target.keyframe_indices)
+
+
+class _KeyframeSequence(Sequence[Keyframe]):
+    """:attr:`Submap.keyframes`: the submap's keyframes as a read-only sequence, each item with its
+    clouds (:meth:`Submap.keyframe`)."""
+
+    def __init__(self, submap: Submap) -> None:
+        self._submap = submap
+
+    def __len__(self) -> int:
+        return len(self._submap)
+
+    @overload
+    def __getitem__(self, k: int) -> Keyframe: ...
+
+    @overload
+    def __getitem__(self, k: slice) -> list[Keyframe]: ...
+
+    def __getitem__(self, k: int | slice) -> Keyframe | list[Keyframe]:
+        if isinstance(k, slice):
+            return [self._submap.keyframe(i) for i in range(*k.indices(len(self)))]
+        return self._submap.keyframe(k)
