@@ -15,22 +15,20 @@ on are kept in memory, with one warning: the run goes on.
 
 from __future__ import annotations
 
-import logging
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SpilledKeyframeClouds"]
+from lidar3d.io.spill_file import SpillFile
 
-log = logging.getLogger(__name__)
+__all__ = ["SpilledKeyframeClouds"]
 
 _DTYPE = np.dtype(np.float32)
 _ROW_BYTES = 3 * _DTYPE.itemsize
 
 
-class SpilledKeyframeClouds:
+class SpilledKeyframeClouds(SpillFile):
     """Keyframe clouds in an anonymous temporary file in ``directory`` (default: the system's
     temporary folder, ``TMPDIR``); use as a context manager or call :meth:`close`.
 
@@ -40,23 +38,11 @@ class SpilledKeyframeClouds:
     """
 
     def __init__(self, directory: str | Path | None = None) -> None:
-        self.directory = str(directory) if directory is not None else tempfile.gettempdir()
+        super().__init__(directory, "keyframe clouds")
         self._where: dict[int, tuple[int, int, int]] = {}  # keyframe -> (offset, corner rows, surface rows)
         self._in_memory: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._end = 0
-        self._writing = True
         self.nbytes = 0
-        self._file = None
-        try:
-            self._file = tempfile.TemporaryFile(dir=directory)  # noqa: SIM115 (closed by close())
-        except OSError as err:
-            self._fall_back(err)
-
-    def __enter__(self) -> SpilledKeyframeClouds:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __contains__(self, keyframe: int) -> bool:
         return keyframe in self._where or keyframe in self._in_memory
@@ -103,17 +89,6 @@ class SpilledKeyframeClouds:
 
     def close(self) -> None:
         """Close (and so delete) the file, drop the clouds."""
-        if self._file is not None:
-            self._file.close()
-            self._file = None
+        super().close()
         self._where = {}
         self._in_memory = {}
-
-    def _fall_back(self, err: OSError) -> None:
-        """Keep the next clouds in memory (those in the file stay there)."""
-        log.warning(
-            "%s: cannot spill keyframe clouds to a temporary file (%s); keeping them in memory",
-            self.directory,
-            err.strerror or err,
-        )
-        self._writing = False

@@ -11,23 +11,20 @@ pieces are read back in order when the map is placed again. About 20 bytes per p
 
 from __future__ import annotations
 
-import logging
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
+from lidar3d.io.spill_file import SpillFile
 from lidar3d.mapping.map_pieces import MapPiece
 
 __all__ = ["SpilledPieceStore"]
 
-log = logging.getLogger(__name__)
-
 _NO_KEYFRAME = -1  # stands for MapPiece.keyframe None on disk
 
 
-class SpilledPieceStore:
+class SpilledPieceStore(SpillFile):
     """Pieces written to an anonymous temporary file in ``directory`` (default: the system's
     temporary folder, ``TMPDIR``); use as a context manager or call :meth:`close`.
 
@@ -36,22 +33,10 @@ class SpilledPieceStore:
     """
 
     def __init__(self, directory: str | Path | None = None) -> None:
-        self.directory = str(directory) if directory is not None else tempfile.gettempdir()
+        super().__init__(directory, "the dense map's pieces")
         self._in_memory: list[MapPiece] = []
         self._n_on_disk = 0
-        self._writing = True
         self.nbytes = 0
-        self._file = None
-        try:
-            self._file = tempfile.TemporaryFile(dir=directory)  # noqa: SIM115 (closed by close())
-        except OSError as err:
-            self._fall_back(err)
-
-    def __enter__(self) -> SpilledPieceStore:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __len__(self) -> int:
         return self._n_on_disk + len(self._in_memory)
@@ -85,18 +70,8 @@ class SpilledPieceStore:
 
     def close(self) -> None:
         """Close (and so delete) the file, drop the pieces."""
-        if self._file is not None:
-            self._file.close()
+        super().close()
         self._in_memory = []
-
-    def _fall_back(self, err: OSError) -> None:
-        """Keep the next pieces in memory (those in the file stay there)."""
-        log.warning(
-            "%s: cannot spill the dense map's pieces to a temporary file (%s); keeping them in memory",
-            self.directory,
-            err.strerror or err,
-        )
-        self._writing = False
 
 
 def _arrays(piece: MapPiece) -> tuple[np.ndarray, ...]:
