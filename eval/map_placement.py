@@ -37,7 +37,7 @@ from lidar3d.io.scan_source import open_scan_source  # noqa: E402
 from lidar3d.io.trajectory_io import read_tum  # noqa: E402
 from lidar3d.mapping.dense_map import build_dense_map  # noqa: E402
 from lidar3d.metrics.alignment import umeyama_se3  # noqa: E402
-from lidar3d.pipeline import SlamPipeline  # noqa: E402
+from lidar3d.pipeline import SlamPipeline, SpillStores  # noqa: E402
 from lidar3d.prefetch import open_prepared_scans  # noqa: E402
 from lidar3d.records import Trajectory  # noqa: E402
 
@@ -73,7 +73,7 @@ def main() -> None:
     config = Config()
     t0 = time.perf_counter()
     with SpilledPieceStore() as store:
-        pipeline = SlamPipeline(config, store)
+        pipeline = SlamPipeline(config, SpillStores(pieces=store))
         with open_prepared_scans([bag], config, max_scans=args.max_scans) as stream:
             for prepared, _ in stream:
                 pipeline.process(prepared)

@@ -50,7 +50,7 @@ from lidar3d.run_statistics import RunStatistics
 from lidar3d.summary import HealthSummary
 from lidar3d.timing import StageClock
 
-__all__ = ["STAGES", "ScanEstimate", "SlamPipeline", "SlamResult", "run_slam"]
+__all__ = ["STAGES", "ScanEstimate", "SlamPipeline", "SlamResult", "SpillStores", "run_slam"]
 
 log = logging.getLogger(__name__)
 
@@ -131,24 +131,25 @@ class SlamResult:
     map_rebuild_s: float | None = None
 
 
+@dataclass(frozen=True, slots=True)
+class SpillStores:
+    """Where a run's long-lived data waits (None: in memory): the dense map's pieces, kept with
+    loop closure on, and the clouds of keyframes older than the submap's latest ones."""
+
+    pieces: PieceStore | None = None
+    keyframe_clouds: KeyframeCloudStore | None = None
+
+
 class SlamPipeline:
     """Call :meth:`process` per scan, :meth:`finish` at the end of the input, then :meth:`result`.
-    ``piece_store``: where the map's pieces wait when loop closure is on (default: in memory);
-    ``map_in_process``: the same map built in a child process (:mod:`lidar3d.map_process`);
-    ``keyframe_clouds``: where the clouds of keyframes older than the submap's latest ones wait
-    (default: in memory; :class:`~lidar3d.mapping.keyframes.Submap`)."""
+    ``stores``: where long-lived data waits (:class:`SpillStores`; default: in memory);
+    ``map_in_process``: the same map built in a child process (:mod:`lidar3d.map_process`)."""
 
-    def __init__(
-        self,
-        config: Config,
-        piece_store: PieceStore | None = None,
-        *,
-        map_in_process: bool = False,
-        keyframe_clouds: KeyframeCloudStore | None = None,
-    ) -> None:
+    def __init__(self, config: Config, stores: SpillStores | None = None, *, map_in_process: bool = False) -> None:
+        stores = stores or SpillStores()
         self.config = config
         mp = config.mapping
-        self.submap = Submap.of_config(mp, keyframe_clouds)
+        self.submap = Submap.of_config(mp, stores.keyframe_clouds)
         self.moving_points = MovingPoints.of_config(config)
         self.tracker = Tracker(config, self.submap, self.moving_points)
         self.keyframe_selector = KeyframeSelector(
@@ -159,7 +160,7 @@ class SlamPipeline:
         self._step_uncertainty = StepUncertainty(config.motion)
         self._pose_uncertainty = PoseUncertainty(config.motion)
         self.stats = RunStatistics()
-        self._map = _dense_map(config, self.loop is not None, piece_store, self.stats if map_in_process else None)
+        self._map = _dense_map(config, self.loop is not None, stores.pieces, self.stats if map_in_process else None)
         self._estimates: list[ScanEstimate] = []
         self._n_seen = 0
 
@@ -263,8 +264,8 @@ class SlamPipeline:
         return SlamResult(
             trajectory=trajectory,
             odometry=_trajectory_of(self._estimates, odometry=True),
-            keyframes=Trajectory(self.submap.stamps_ns, self.submap.poses.reshape(-1, 4, 4)),
-            keyframe_scan_indices=self.submap.scan_indices,
+            keyframes=Trajectory(self.submap.keyframes.stamps_ns, self.submap.poses.reshape(-1, 4, 4)),
+            keyframe_scan_indices=self.submap.keyframes.scan_indices,
             scan_indices=scan_indices,
             map_points=clouds.points,
             map_intensity=clouds.intensity,
@@ -329,7 +330,7 @@ class SlamPipeline:
         self.submap.set_poses(update.poses)
         if self.moving_points is not None:
             self.moving_points.clear()  # the keyframes whose rays it holds moved
-        keyframe_stamps = self.submap.stamps_ns
+        keyframe_stamps = self.submap.keyframes.stamps_ns
         before = _trajectory_of(self._estimates)
         corrected = correct_scan_poses(
             before.stamps_ns, before.T_world_lidar, keyframe_stamps, update.previous_poses, update.poses

@@ -51,7 +51,7 @@ from lidar3d.io.run_folder import existing_run_outputs, publish_set
 from lidar3d.io.scan_source import open_scan_source
 from lidar3d.io.trajectory_io import write_kitti, write_tum
 from lidar3d.mapping.health import ScanHealth
-from lidar3d.pipeline import SlamPipeline, SlamResult
+from lidar3d.pipeline import SlamPipeline, SlamResult, SpillStores
 from lidar3d.prefetch import open_prepared_scans
 from lidar3d.records import Trajectory
 from lidar3d.summary import EvaluationSummary, InputStatistics, RunCounts, RunSummary, StageMedians
@@ -312,7 +312,7 @@ def run_bag(
     piece_store = SpilledPieceStore() if config.loop.enabled and not prefetch else None
     # The clouds of keyframes the tracking has left behind wait on disk too (read back on a revisit).
     keyframe_clouds = SpilledKeyframeClouds()
-    pipeline = SlamPipeline(config, piece_store, map_in_process=prefetch, keyframe_clouds=keyframe_clouds)
+    pipeline = SlamPipeline(config, SpillStores(piece_store, keyframe_clouds), map_in_process=prefetch)
     publisher = _RunPublisher(out, config)
     read_ms: list[float] = []
     t_start = time.perf_counter()

@@ -12,7 +12,7 @@ from lidar3d.config import Config
 from lidar3d.features.frontend import prepare_scan
 from lidar3d.io.keyframe_spill import SpilledKeyframeClouds
 from lidar3d.mapping.keyframes import Keyframe, Submap
-from lidar3d.pipeline import SlamPipeline
+from lidar3d.pipeline import SlamPipeline, SpillStores
 
 
 def _clouds(k: int) -> tuple[np.ndarray, np.ndarray]:
@@ -104,15 +104,15 @@ def test_a_submap_with_a_cloud_store_keeps_only_its_resident_keyframes_points(tm
             for submap in (in_memory, spilled):
                 submap.add(Keyframe(k, 10 * k, 1000 * k, T, *_clouds(k)))
         assert [k in store for k in range(6)] == [True] * 4 + [False] * 2
-        assert all(len(kf.surf_points) == 0 for kf in spilled._keyframes[:4])  # the records hold no points
+        assert all(len(spilled.keyframes.record(k).surf_points) == 0 for k in range(4))  # records hold no points
         for k in range(6):
             _assert_same(
                 (spilled.keyframes[k].corner_points, spilled.keyframes[k].surf_points),
                 (in_memory.keyframes[k].corner_points, in_memory.keyframes[k].surf_points),
             )
         assert len(spilled.keyframes[1:4]) == 3 and spilled.keyframes[-1].index == 5
-        np.testing.assert_array_equal(spilled.stamps_ns, in_memory.stamps_ns)
-        np.testing.assert_array_equal(spilled.scan_indices, [0, 10, 20, 30, 40, 50])
+        np.testing.assert_array_equal(spilled.keyframes.stamps_ns, in_memory.keyframes.stamps_ns)
+        np.testing.assert_array_equal(spilled.keyframes.scan_indices, [0, 10, 20, 30, 40, 50])
         for submap in (in_memory, spilled):
             submap.replace_clouds(1, *_clouds(41))
         _assert_same((spilled.keyframes[1].corner_points, spilled.keyframes[1].surf_points), _clouds(41))
@@ -135,7 +135,7 @@ def test_a_pipeline_whose_keyframe_clouds_wait_on_disk_gives_the_same_poses(tmp_
     poses = []
     with SpilledKeyframeClouds(tmp_path) as store:
         for keyframe_clouds in (None, store):
-            pipeline = SlamPipeline(config, keyframe_clouds=keyframe_clouds)
+            pipeline = SlamPipeline(config, SpillStores(keyframe_clouds=keyframe_clouds))
             for scan in scans:
                 pipeline.process(scan)
             pipeline.finish()

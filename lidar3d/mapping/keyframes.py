@@ -16,7 +16,7 @@ from lidar3d.mapping.registration import LineMap, PlaneMap
 from lidar3d.mapping.se3 import invert, transform_points
 from lidar3d.mapping.voxel import KeyedCloud, voxel_downsample_parts
 
-__all__ = ["Keyframe", "KeyframeCloudStore", "KeyframeSelector", "Submap", "SubmapTarget"]
+__all__ = ["Keyframe", "KeyframeCloudStore", "KeyframeList", "KeyframeSelector", "Submap", "SubmapTarget"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,10 +149,7 @@ class Submap:
         self.plane_max_distance_m = plane_max_distance_m
         self._added_since_build = 0
         self.revision = 0
-        self.cloud_store = cloud_store
-        self.resident = max(1, resident)
-        self._keyframes: list[Keyframe] = []  # a stored keyframe's record holds no points
-        self._stored: list[bool] = []
+        self._keyframes = KeyframeList(cloud_store, resident)
         self._poses: list[np.ndarray] = []
         self._cache: OrderedDict[int, tuple[KeyedCloud, KeyedCloud]] = OrderedDict()
         self._target: SubmapTarget | None = None
@@ -179,29 +176,10 @@ class Submap:
         return len(self._keyframes)
 
     @property
-    def keyframes(self) -> Sequence[Keyframe]:
-        """Every keyframe so far, with its clouds (read back from the store for older ones, when
-        an item is taken)."""
-        return _KeyframeSequence(self)
-
-    @property
-    def stamps_ns(self) -> np.ndarray:
-        """(K,) int64 keyframe stamps (no clouds read)."""
-        return np.array([kf.stamp_ns for kf in self._keyframes], dtype=np.int64)
-
-    @property
-    def scan_indices(self) -> np.ndarray:
-        """(K,) int64 input scan index of each keyframe (no clouds read)."""
-        return np.array([kf.scan_index for kf in self._keyframes], dtype=np.int64)
-
-    def keyframe(self, k: int) -> Keyframe:
-        """Keyframe ``k`` (negative counts from the latest) with its clouds."""
-        kf = self._keyframes[k]
-        if not self._stored[k]:
-            return kf
-        assert self.cloud_store is not None
-        corner, surf = self.cloud_store.get(kf.index)
-        return dataclasses.replace(kf, corner_points=corner, surf_points=surf)
+    def keyframes(self) -> KeyframeList:
+        """Every keyframe so far (an item comes with its clouds, read back from the store for
+        older ones)."""
+        return self._keyframes
 
     @property
     def poses(self) -> np.ndarray:
@@ -215,32 +193,14 @@ class Submap:
         return MapAnchor(len(self._keyframes) - 1, self._poses[-1])
 
     def add(self, keyframe: Keyframe) -> None:
-        """Append ``keyframe`` (its ``index`` the next number); with a cloud store, the keyframe
-        that now falls out of the resident ones hands its clouds to the store."""
-        if keyframe.index != len(self._keyframes):
-            raise ValueError(f"keyframe {keyframe.index} added as number {len(self._keyframes)}")
+        """Append ``keyframe`` (its ``index`` the next number)."""
         self._keyframes.append(keyframe)
-        self._stored.append(False)
         self._poses.append(np.array(keyframe.T_world_lidar))
         self._added_since_build += 1
-        oldest_resident = len(self._keyframes) - self.resident
-        if self.cloud_store is not None and oldest_resident > 0:
-            self._store_clouds(oldest_resident - 1, self._keyframes[oldest_resident - 1])
-
-    def _store_clouds(self, k: int, keyframe: Keyframe) -> None:
-        """Keyframe ``k``'s clouds to the store; its record keeps the rest."""
-        assert self.cloud_store is not None
-        self.cloud_store.put(k, keyframe.corner_points, keyframe.surf_points)
-        self._keyframes[k] = dataclasses.replace(keyframe, corner_points=_NO_POINTS, surf_points=_NO_POINTS)
-        self._stored[k] = True
 
     def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
         """Replace keyframe ``k``'s clouds (e.g. once a better deskewing motion is known)."""
-        new = dataclasses.replace(self._keyframes[k], corner_points=corner_points, surf_points=surf_points)
-        if self._stored[k]:
-            self._store_clouds(k, new)
-        else:
-            self._keyframes[k] = new
+        self._keyframes.replace_clouds(k, corner_points, surf_points)
         self._cache.pop(k, None)
         self._target = None
         self.revision += 1
@@ -261,7 +221,7 @@ class Submap:
         if cached is not None:
             self._cache.move_to_end(k)
             return cached
-        kf = self.keyframe(k)
+        kf = self._keyframes[k]
         T = self._poses[k]
         clouds = (
             KeyedCloud.of(transform_points(T, kf.corner_points.astype(np.float64)), self.corner_voxel_m),
@@ -314,18 +274,25 @@ class Submap:
         while the tracker was lost (:attr:`Keyframe.placed_lost`); 0 before any target."""
         if self._target is None:
             return 0
-        return sum(self._keyframes[k].placed_lost for k in self._target.keyframe_indices)
+        return sum(self._keyframes.record(k).placed_lost for k in self._target.keyframe_indices)
 
 
-class _KeyframeSequence(Sequence[Keyframe]):
-    """:attr:`Submap.keyframes`: the submap's keyframes as a read-only sequence, each item with its
-    clouds (:meth:`Submap.keyframe`)."""
+class KeyframeList(Sequence[Keyframe]):
+    """The keyframes of a :class:`Submap`, in order; an item comes with its clouds.
 
-    def __init__(self, submap: Submap) -> None:
-        self._submap = submap
+    With a ``cloud_store``, only the ``resident`` latest keyframes keep their lidar-frame clouds in
+    memory: the clouds of the keyframe that falls out of them go to the store (on disk in a run),
+    its record keeps the rest (:meth:`record`), and taking the item reads them back.
+    """
+
+    def __init__(self, cloud_store: KeyframeCloudStore | None = None, resident: int = 10) -> None:
+        self.cloud_store = cloud_store
+        self.resident = max(1, resident)
+        self._records: list[Keyframe] = []  # a stored keyframe's record holds no points
+        self._stored: list[bool] = []
 
     def __len__(self) -> int:
-        return len(self._submap)
+        return len(self._records)
 
     @overload
     def __getitem__(self, k: int) -> Keyframe: ...
@@ -335,5 +302,50 @@ class _KeyframeSequence(Sequence[Keyframe]):
 
     def __getitem__(self, k: int | slice) -> Keyframe | list[Keyframe]:
         if isinstance(k, slice):
-            return [self._submap.keyframe(i) for i in range(*k.indices(len(self)))]
-        return self._submap.keyframe(k)
+            return [self[i] for i in range(*k.indices(len(self)))]
+        record = self._records[k]
+        if not self._stored[k]:
+            return record
+        assert self.cloud_store is not None
+        corner, surf = self.cloud_store.get(record.index)
+        return dataclasses.replace(record, corner_points=corner, surf_points=surf)
+
+    def record(self, k: int) -> Keyframe:
+        """Keyframe ``k`` without reading its clouds back (a stored one's clouds are empty)."""
+        return self._records[k]
+
+    @property
+    def stamps_ns(self) -> np.ndarray:
+        """(K,) int64 keyframe stamps (no clouds read)."""
+        return np.array([kf.stamp_ns for kf in self._records], dtype=np.int64)
+
+    @property
+    def scan_indices(self) -> np.ndarray:
+        """(K,) int64 input scan index of each keyframe (no clouds read)."""
+        return np.array([kf.scan_index for kf in self._records], dtype=np.int64)
+
+    def append(self, keyframe: Keyframe) -> None:
+        """Append ``keyframe`` (its ``index`` the next number); with a cloud store, the keyframe
+        that now falls out of the resident ones hands its clouds to the store."""
+        if keyframe.index != len(self._records):
+            raise ValueError(f"keyframe {keyframe.index} added as number {len(self._records)}")
+        self._records.append(keyframe)
+        self._stored.append(False)
+        oldest_resident = len(self._records) - self.resident
+        if self.cloud_store is not None and oldest_resident > 0:
+            self._store(oldest_resident - 1, self._records[oldest_resident - 1])
+
+    def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
+        """Replace keyframe ``k``'s clouds, in the store when its clouds are there."""
+        new = dataclasses.replace(self._records[k], corner_points=corner_points, surf_points=surf_points)
+        if self._stored[k]:
+            self._store(k, new)
+        else:
+            self._records[k] = new
+
+    def _store(self, k: int, keyframe: Keyframe) -> None:
+        """Keyframe ``k``'s clouds to the store; its record keeps the rest."""
+        assert self.cloud_store is not None
+        self.cloud_store.put(k, keyframe.corner_points, keyframe.surf_points)
+        self._records[k] = dataclasses.replace(keyframe, corner_points=_NO_POINTS, surf_points=_NO_POINTS)
+        self._stored[k] = True
