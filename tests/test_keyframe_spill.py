@@ -61,20 +61,20 @@ def test_a_spill_folder_that_cannot_hold_the_file_keeps_the_clouds_in_memory(tmp
 
 
 def test_a_spill_file_that_fails_midway_keeps_what_it_holds_and_the_rest_in_memory(tmp_path, caplog, monkeypatch):
-    real_pwrite = os.pwrite
+    real_pwritev = os.pwritev
     calls = []
 
-    def full_disk(fd, data, offset):
+    def full_disk(fd, buffers, offset):
         calls.append(1)
         if len(calls) == 3:
             raise OSError(28, "No space left on device")
-        return real_pwrite(fd, data, offset)
+        return real_pwritev(fd, buffers, offset)
 
     with SpilledKeyframeClouds(tmp_path) as store:
-        monkeypatch.setattr(os, "pwrite", full_disk)
+        monkeypatch.setattr(os, "pwritev", full_disk)
         for k in range(5):
             store.put(k, *_clouds(k))
-        monkeypatch.setattr(os, "pwrite", real_pwrite)
+        monkeypatch.setattr(os, "pwritev", real_pwritev)
         assert len(calls) == 3  # after the failure nothing more is written
         for k in range(5):
             _assert_same(store.get(k), _clouds(k))

@@ -7,7 +7,7 @@ drive) for as long as the run goes: the submap reads them again when the drive c
 keyframe, the loop verification when a revisit is proposed near it. Only the latest few are read
 often, so :class:`~lidar3d.mapping.keyframes.Submap` hands older ones to this store, which appends
 them to one anonymous temporary file (``tempfile.TemporaryFile``: no name on disk, nothing left
-behind whatever ends the process) and reads them back by offset (``os.pread``: no shared file
+behind whatever ends the process) and reads them back by offset (``os.preadv``: no shared file
 position). The bytes read back are the bytes written, so a run's outputs do not depend on where
 its clouds were. When the file cannot be created or written (a full disk), the clouds from then
 on are kept in memory, with one warning: the run goes on.
@@ -25,7 +25,6 @@ from lidar3d.io.spill_file import SpillFile
 __all__ = ["SpilledKeyframeClouds"]
 
 _DTYPE = np.dtype(np.float32)
-_ROW_BYTES = 3 * _DTYPE.itemsize
 
 
 class SpilledKeyframeClouds(SpillFile):
@@ -56,16 +55,16 @@ class SpilledKeyframeClouds(SpillFile):
         self._where.pop(keyframe, None)
         self._in_memory.pop(keyframe, None)
         if self._file is not None and self._writing:
-            data = corner.tobytes() + surf.tobytes()
+            size = corner.nbytes + surf.nbytes
             try:
-                written = os.pwrite(self._file.fileno(), data, self._end)
-                if written != len(data):
-                    raise OSError(f"wrote {written} of {len(data)} bytes")
+                written = os.pwritev(self._file.fileno(), [corner.data, surf.data], self._end)  # no copy
+                if written != size:
+                    raise OSError(f"wrote {written} of {size} bytes")
             except OSError as err:
                 self._fall_back(err)
             else:
                 self._where[keyframe] = (self._end, len(corner), len(surf))
-                self._end += len(data)
+                self._end += size
                 return
         self._in_memory[keyframe] = (corner, surf)
 
@@ -80,11 +79,10 @@ class SpilledKeyframeClouds(SpillFile):
             return corner.copy(), surf.copy()
         offset, n_corner, n_surf = self._where[keyframe]
         assert self._file is not None
-        size = (n_corner + n_surf) * _ROW_BYTES
-        data = os.pread(self._file.fileno(), size, offset)
-        if len(data) != size:
-            raise OSError(f"{self.directory}: keyframe {keyframe}'s clouds came back short ({len(data)} of {size} B)")
-        points = np.frombuffer(data, dtype=_DTYPE).reshape(-1, 3).copy()
+        points = np.empty((n_corner + n_surf, 3), _DTYPE)
+        read = os.preadv(self._file.fileno(), [points.data], offset)  # into the array, no copy
+        if read != points.nbytes:
+            raise OSError(f"{self.directory}: keyframe {keyframe}'s clouds came back short ({read} of {points.nbytes})")
         return points[:n_corner], points[n_corner:]
 
     def close(self) -> None:

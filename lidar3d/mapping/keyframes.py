@@ -289,7 +289,6 @@ class KeyframeList(Sequence[Keyframe]):
         self.cloud_store = cloud_store
         self.resident = max(1, resident)
         self._records: list[Keyframe] = []  # a stored keyframe's record holds no points
-        self._stored: list[bool] = []
 
     def __len__(self) -> int:
         return len(self._records)
@@ -304,7 +303,7 @@ class KeyframeList(Sequence[Keyframe]):
         if isinstance(k, slice):
             return [self[i] for i in range(*k.indices(len(self)))]
         record = self._records[k]
-        if not self._stored[k]:
+        if not self._is_stored(k):
             return record
         assert self.cloud_store is not None
         corner, surf = self.cloud_store.get(record.index)
@@ -330,15 +329,14 @@ class KeyframeList(Sequence[Keyframe]):
         if keyframe.index != len(self._records):
             raise ValueError(f"keyframe {keyframe.index} added as number {len(self._records)}")
         self._records.append(keyframe)
-        self._stored.append(False)
-        oldest_resident = len(self._records) - self.resident
-        if self.cloud_store is not None and oldest_resident > 0:
-            self._store(oldest_resident - 1, self._records[oldest_resident - 1])
+        newly_stored = len(self._records) - self.resident - 1
+        if self.cloud_store is not None and newly_stored >= 0:
+            self._store(newly_stored, self._records[newly_stored])
 
     def replace_clouds(self, k: int, corner_points: np.ndarray, surf_points: np.ndarray) -> None:
         """Replace keyframe ``k``'s clouds, in the store when its clouds are there."""
         new = dataclasses.replace(self._records[k], corner_points=corner_points, surf_points=surf_points)
-        if self._stored[k]:
+        if self._is_stored(k):
             self._store(k, new)
         else:
             self._records[k] = new
@@ -348,4 +346,8 @@ class KeyframeList(Sequence[Keyframe]):
         assert self.cloud_store is not None
         self.cloud_store.put(k, keyframe.corner_points, keyframe.surf_points)
         self._records[k] = dataclasses.replace(keyframe, corner_points=_NO_POINTS, surf_points=_NO_POINTS)
-        self._stored[k] = True
+
+    def _is_stored(self, k: int) -> bool:
+        """Keyframe ``k``'s clouds are in the store: every keyframe older than the resident ones
+        (the latest always stays: its clouds are replaced once the next sweep settles it)."""
+        return self.cloud_store is not None and range(len(self._records))[k] < len(self._records) - self.resident
