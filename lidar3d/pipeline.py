@@ -194,7 +194,9 @@ class SlamPipeline:
         )
         pose_covariance = self._pose_uncertainty.add(track.T_world_lidar, dt_s, rows_information)
         if self.moving_points is not None:
-            self.moving_points.note_pose_covariance(pose_covariance)
+            self.moving_points.note_pose_covariance(
+                pose_covariance, track.prior.information if track.prior is not None else None
+            )
         health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health, pose_covariance))
         self.stats.add_timings(track.timings_ms)
         if track.registration is not None and track.registration.degenerate_axes:

@@ -74,6 +74,33 @@ def test_the_ray_of_the_nearest_ring_is_the_one_tested():
     assert (hits[0], misses[0]) == (1, 0)
 
 
+def test_a_point_beside_a_silhouette_is_seen_through_only_without_the_neighbourhood():
+    """A pole at 10 m before a wall at 20 m: the ray just beside the pole passes a point at the
+    pole's edge and returns from the wall, while the ray next to it hit the pole."""
+    elevation = np.deg2rad([0.0])
+    config = DynamicConfig()
+
+    def beam(azimuth_deg: float, range_m: float) -> list[float]:
+        a = np.deg2rad(azimuth_deg)
+        return [range_m * np.cos(a), range_m * np.sin(a), 0.0]
+
+    def probe(beams: list[list[float]]) -> SweepProbe:
+        points = np.array(beams)
+        sweep = PlacedSweep(points, points, np.zeros(len(points), int), np.zeros(len(points), np.float32), np.eye(4))
+        return SweepProbe.of(sweep, 1, 1800)  # 0.2 deg columns
+
+    edge = np.array([beam(0.25, 10.0)])  # in the wall ray's column, 1 cm from that ray
+    pole_before_wall = ProbeStack.of([probe([beam(0.1, 10.0), beam(0.3, 20.0), beam(0.5, 20.0)])], neighbourhood=True)
+    assert voxel_evidence(edge, pole_before_wall, np.arange(1), elevation, config)[1][0] == 1
+    assert voxel_evidence(edge, pole_before_wall, np.arange(1), elevation, config, neighbourhood=True)[1][0] == 0
+    # the same rays through empty space: every ray around went on to the wall
+    wall = ProbeStack.of([probe([beam(0.1, 20.0), beam(0.3, 20.0), beam(0.5, 20.0)])], neighbourhood=True)
+    assert voxel_evidence(edge, wall, np.arange(1), elevation, config, neighbourhood=True)[1][0] == 1
+    without = ProbeStack.of([probe([beam(0.3, 20.0)])])  # a stack made without the neighbourhood
+    with pytest.raises(ValueError, match="neighbourhood"):
+        voxel_evidence(edge, without, np.arange(1), elevation, config, neighbourhood=True)
+
+
 # ---------------------------------------------------------------- the simulator's traffic, exact poses
 
 

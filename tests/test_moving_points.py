@@ -104,3 +104,47 @@ def test_an_uncertain_pose_needs_more_than_its_uncertainty_to_see_through():
     assert moving.moving(three_m_in_front[None], np.eye(4)).all()
     moving.note_pose_covariance(None)
     assert moving.moving(three_m_in_front[None], np.eye(4)).all()
+
+
+def _side_wall_sweep(y_m: float = 3.0) -> SweepFeatures:
+    """Every beam of azimuths 3..40 deg returning from a wall along the street at y = ``y_m``
+    (what the vehicle drives beside: seen ever more obliquely farther ahead)."""
+    rings, azimuths = np.meshgrid(np.arange(len(MODEL.elevation_deg)), np.arange(3.0, 40.0, 0.2), indexing="ij")
+    points = []
+    for ring, azimuth in zip(rings.ravel(), azimuths.ravel()):
+        direction = _ray(int(ring), float(azimuth), 1.0)
+        points.append(direction * (y_m / direction[1]))
+    return _sweep(_cloud(np.array(points), rings.ravel()))
+
+
+def _yawed(deg: float) -> np.ndarray:
+    """(4,4) a pose turned by ``deg`` about z."""
+    T = np.eye(4)
+    c, s = np.cos(np.radians(deg)), np.sin(np.radians(deg))
+    T[:2, :2] = [[c, -s], [s, c]]
+    return T
+
+
+def test_a_guess_turned_within_its_uncertainty_does_not_see_through_a_far_wall():
+    moving = MovingPoints.of_config(CONFIG)
+    assert moving is not None
+    for _ in range(4):  # keyframes at the origin, all seeing the wall beside the street
+        moving.without_moving(_side_wall_sweep(), _side_wall_sweep(), None)
+        moving.add_keyframe(np.eye(4))
+    direction = _ray(8, 5.7, 1.0)
+    on_wall = (direction * (3.0 / direction[1]))[None]  # 30 m ahead, on the wall
+    # a guess 2 deg off in yaw (a turn's onset the prediction missed) puts it 1 m into the
+    # street, where the keyframes' rays (and the rays around them) went 14 m on
+    assert moving.moving(on_wall, _yawed(-2.0)).all()
+
+    def step_information(yaw_sigma_deg: float) -> np.ndarray:
+        return np.diag([1e4] * 3 + [1e10] * 2 + [np.radians(yaw_sigma_deg) ** -2])
+
+    moving.note_pose_covariance(None, step_information(0.5))  # the vehicle model's yaw over one step
+    assert not moving.moving(on_wall, _yawed(-1.0)).any()
+    assert not moving.moving(on_wall, _yawed(-2.0)).any()  # within three sigmas
+    moving.note_pose_covariance(None, step_information(0.1))
+    assert moving.moving(on_wall, _yawed(-2.0)).all()  # beyond them
+    pose_covariance = np.diag([np.radians(0.5) ** 2] * 3 + [1e-6] * 3)  # [w, v]: the pose's own yaw
+    moving.note_pose_covariance(pose_covariance, None)
+    assert not moving.moving(on_wall, _yawed(-2.0)).any()

@@ -261,6 +261,17 @@ def point_normals(points_lidar: np.ndarray, ring: np.ndarray, n_rings: int, n_bi
     return normal
 
 
+def _nearest_around(range_m: np.ndarray) -> np.ndarray:
+    """(rings, bins) float32: per pixel of a (rings, bins) range image (0: no return) the nearest
+    return of the pixel and its eight neighbours (columns wrap around), 0 where none holds one."""
+    r = np.where(range_m > 0.0, range_m, np.inf)
+    across = np.minimum(np.minimum(r, np.roll(r, 1, axis=1)), np.roll(r, -1, axis=1))
+    nearest = across.copy()
+    nearest[1:] = np.minimum(nearest[1:], across[:-1])
+    nearest[:-1] = np.minimum(nearest[:-1], across[1:])
+    return np.where(np.isfinite(nearest), nearest, 0.0).astype(np.float32)
+
+
 def _azimuth_bin(points: np.ndarray, n_bins: int) -> np.ndarray:
     azimuth = np.arctan2(points[:, 1], points[:, 0])
     return (np.floor((azimuth + np.pi) * (n_bins / (2.0 * np.pi))).astype(np.int64)) % n_bins
@@ -272,20 +283,24 @@ class ProbeStack:
 
     Args:
         n_slots: probes held at most; ``n_rings``, ``n_bins``: their image size.
+        neighbourhood: also keep ``nearest_around_m``, per pixel the nearest return among it and its
+            eight neighbours (rings and columns next to it; 0 where none of them holds one), for
+            :func:`voxel_evidence` with ``neighbourhood``; None without.
     """
 
-    def __init__(self, n_slots: int, n_rings: int, n_bins: int) -> None:
+    def __init__(self, n_slots: int, n_rings: int, n_bins: int, *, neighbourhood: bool = False) -> None:
         self.origin_m = np.zeros((n_slots, 3))
         self.R_world_lidar = np.tile(np.eye(3), (n_slots, 1, 1))
         self.points_lidar = np.zeros((n_slots, n_rings, n_bins, 3), np.float32)
         self.range_m = np.zeros((n_slots, n_rings, n_bins), np.float32)
         self.sin_grazing = np.ones((n_slots, n_rings, n_bins), np.float32)
+        self.nearest_around_m = np.zeros((n_slots, n_rings, n_bins), np.float32) if neighbourhood else None
 
     @classmethod
-    def of(cls, probes: list[SweepProbe]) -> ProbeStack:
+    def of(cls, probes: list[SweepProbe], *, neighbourhood: bool = False) -> ProbeStack:
         """A stack holding ``probes`` in slots 0, 1, ..."""
         n_rings, n_bins = probes[0].range_m.shape if probes else (1, 1)
-        stack = cls(len(probes), n_rings, n_bins)
+        stack = cls(len(probes), n_rings, n_bins, neighbourhood=neighbourhood)
         for slot, probe in enumerate(probes):
             stack.put(slot, probe)
         return stack
@@ -297,6 +312,8 @@ class ProbeStack:
         self.points_lidar[slot] = probe.points_lidar
         self.range_m[slot] = probe.range_m
         self.sin_grazing[slot] = probe.sin_grazing
+        if self.nearest_around_m is not None:
+            self.nearest_around_m[slot] = _nearest_around(probe.range_m)
 
 
 def voxel_evidence(
@@ -306,6 +323,8 @@ def voxel_evidence(
     elevation_rad: np.ndarray,
     config: DynamicConfig,
     normals_world: np.ndarray | None = None,
+    *,
+    neighbourhood: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hits and misses of each voxel centroid over the probes in ``slots`` of ``stack`` (see the
     module docstring).
@@ -322,6 +341,12 @@ def voxel_evidence(
     ``surface_angle_deg`` (the angular error between the two sweeps' poses) times the range did not
     go through it, however far it returns: a ray skimming over a car's roof, or along a slope,
     passes the roof's voxels within the pass tolerance, and says nothing about them.
+
+    With ``neighbourhood`` (a stack made with it), the rays of the pixels around must have gone
+    beyond it too (the nearest return of the pixel and its eight neighbours): a point at an
+    object's silhouette, which the ray beside the object passes within the tolerance, is not taken
+    to be seen through by it while the next ray hit the object; the space a moving object has left
+    is seen through by every ray around.
 
     Args:
         centroids_world: (V,3) voxel centroids, world frame.
@@ -368,6 +393,10 @@ def voxel_evidence(
         sine = stack.sin_grazing.reshape(-1)[pixel].astype(np.float64)
         beyond = np.maximum(margin, offset / np.maximum(sine, 1e-3))
     through = return_m > along + beyond
+    if neighbourhood:
+        if stack.nearest_around_m is None:
+            raise ValueError("the probes' stack was made without the neighbourhood")
+        through &= stack.nearest_around_m.reshape(-1)[pixel] > along + beyond
     if normals_world is not None:
         # How far in front of the voxel's surface the ray passes: n . (closest point of the ray - c).
         m = np.matmul(normals_world[None], R).reshape(-1, 3)[pair]

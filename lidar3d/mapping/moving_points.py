@@ -19,11 +19,20 @@ hit), or was hidden (no evidence). What the test cannot see: an object moving aw
 sensor fills space that its own back hid (a lead car pulling away); new structure at the edge of
 the view has no evidence and is kept. Ground points are never tested (rays skim the road).
 
-The margin grows by three of the largest translation sigmas of the pose's uncertainty relative to
-the map (:meth:`MovingPoints.note_pose_covariance`): a drifting guess must not take the structure
-that would correct it for a moving object. Off by default (``moving_probe_keyframes`` = 0): a turn's
-onset, which the prediction does not expect, still makes static points look moving, and on the
-held-out drives that cost more than the moving objects did (docs/stages/odometry-mapping.md).
+The guess is uncertain, and the test allows for it (:meth:`MovingPoints.note_pose_covariance`),
+so that a guess off by what its uncertainty allows does not take the structure that would correct
+it for a moving object: a ray sees through a point only when it returns beyond it by the margin
+plus three of the largest translation sigmas of the pose's uncertainty, and only beyond the
+grazing slack of the surface it hit, taken with the angular error ``dynamic.pose_angle_deg`` plus
+three of the largest rotation sigmas of the guess. That rotation uncertainty is the pose's relative
+to the map plus one step of the vehicle model (its bounded yaw and tilt accelerations): a turn's
+onset, which a prediction cannot expect, turns the whole sweep by up to that much, and a far wall
+turned by it lands where a keyframe's ray went on. And a ray sees through a point only when the
+rays around it went beyond it too (``voxel_evidence(..., neighbourhood=True)``): at an object's
+silhouette the ray that just missed the object passes its edge points.
+
+Off by default (``moving_probe_keyframes`` = 0): over the evaluation suite it makes some drives
+much better and others much worse (docs/stages/odometry-mapping.md#moving-objects).
 
 Frames: the sweep's points in its deskewed lidar frame at the stamp; poses ``T_world_lidar``.
 After a loop closure the keyframes moved, so the probes are dropped and gathered again.
@@ -58,11 +67,12 @@ class MovingPoints:
         self.config = config
         self._elevation_rad = np.deg2rad(np.asarray(elevation_deg, dtype=np.float64))
         self._n_bins = int(n_columns)
-        self._stack = ProbeStack(n_keyframes, len(self._elevation_rad), self._n_bins)
+        self._stack = ProbeStack(n_keyframes, len(self._elevation_rad), self._n_bins, neighbourhood=True)
         self._n_slots = int(n_keyframes)
         self._n_added = 0
         self._returns: SweepFeatures | None = None  # the latest sweep, deskewed, nothing removed
         self._pose_sigma_m = 0.0
+        self._angle_sigma_rad = 0.0
 
     @classmethod
     def of_config(cls, config: Config) -> MovingPoints | None:
@@ -91,16 +101,24 @@ class MovingPoints:
         self._stack.put(self._n_added % self._n_slots, probe)
         self._n_added += 1
 
-    def note_pose_covariance(self, covariance: np.ndarray | None) -> None:
-        """The latest pose's (6,6) covariance relative to the map (tangent ``[w, v]``, lidar frame;
-        :class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`): the next sweep, placed at a
-        guess at least this uncertain, is seen through only beyond three of its largest
-        translation sigmas more (a drifting guess must not take the structure that would correct
-        it for a moving object)."""
+    def note_pose_covariance(self, covariance: np.ndarray | None, step_information: np.ndarray | None = None) -> None:
+        """How uncertain the guess of the next sweep is: the latest pose's (6,6) ``covariance``
+        relative to the map (tangent ``[w, v]``, lidar frame;
+        :class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`; None: unknown) and the vehicle
+        model's (6,6) ``step_information`` over one scan (``[tx, ty, tz, roll, pitch, yaw]``, m and
+        rad: the prior of the scan just tracked, the next one's differs little; None: no vehicle
+        model yet). A ray then sees through a point only beyond three of the largest translation
+        sigmas more than the margin, and beyond the grazing slack of three of the largest rotation
+        sigmas (pose and step) more than ``dynamic.pose_angle_deg``."""
+        step_variance = 0.0
+        if step_information is not None and np.isfinite(step_information).all():
+            step_variance = _largest_variance(np.linalg.inv(step_information)[3:, 3:])
         if covariance is None or not np.isfinite(covariance).all():
             self._pose_sigma_m = 0.0
+            self._angle_sigma_rad = float(np.sqrt(step_variance))
             return
-        self._pose_sigma_m = float(np.sqrt(max(np.linalg.eigvalsh(covariance[3:, 3:]).max(), 0.0)))
+        self._pose_sigma_m = float(np.sqrt(_largest_variance(covariance[3:, 3:])))
+        self._angle_sigma_rad = float(np.sqrt(_largest_variance(covariance[:3, :3]) + step_variance))
 
     def clear(self) -> None:
         """Forget the images (the keyframes moved: a loop closure)."""
@@ -114,9 +132,13 @@ class MovingPoints:
         if n == 0 or len(self) < self.config.min_misses:
             return np.zeros(n, bool)
         world = np.asarray(points_lidar, dtype=np.float64) @ T_world_lidar[:3, :3].T + T_world_lidar[:3, 3]
-        margin_m = self.config.range_margin_m + 3.0 * self._pose_sigma_m
-        config = dataclasses.replace(self.config, range_margin_m=margin_m)
-        hits, misses = voxel_evidence(world, self._stack, np.arange(len(self)), self._elevation_rad, config)
+        config = dataclasses.replace(
+            self.config,
+            range_margin_m=self.config.range_margin_m + 3.0 * self._pose_sigma_m,
+            pose_angle_deg=self.config.pose_angle_deg + 3.0 * float(np.degrees(self._angle_sigma_rad)),
+        )
+        slots = np.arange(len(self))
+        hits, misses = voxel_evidence(world, self._stack, slots, self._elevation_rad, config, neighbourhood=True)
         return (misses >= self.config.min_misses) & (misses >= self.config.miss_ratio * hits)
 
     def without_moving(
@@ -136,3 +158,8 @@ class MovingPoints:
             return sweep, deskewed
         moving = dict(zip(names, np.split(flags, np.cumsum([len(c) for c in clouds])[:-1])))
         return sweep.without(moving), deskewed.without(moving)
+
+
+def _largest_variance(covariance: np.ndarray) -> float:
+    """The largest eigenvalue of a (3,3) covariance block, at least 0."""
+    return max(float(np.linalg.eigvalsh(covariance).max()), 0.0)
