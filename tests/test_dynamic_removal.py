@@ -101,6 +101,25 @@ def test_a_point_beside_a_silhouette_is_seen_through_only_without_the_neighbourh
         voxel_evidence(edge, without, np.arange(1), elevation, config, neighbourhood=True)
 
 
+def test_the_nearest_return_around_wraps_round_the_columns_not_past_the_rings():
+    range_m = np.zeros((3, 6), np.float32)
+    range_m[0, 0] = 4.0  # first ring, first column
+    range_m[2, 3] = 7.0
+    range_m[1, 3] = 9.0
+    probe = SweepProbe(np.zeros(3), np.eye(3), np.zeros((3, 6, 3), np.float32), range_m, np.ones((3, 6), np.float32))
+    nearest = ProbeStack.of([probe], neighbourhood=True).nearest_around_m
+    assert nearest is not None
+    expected = np.array(
+        [
+            [4.0, 4.0, 9.0, 9.0, 9.0, 4.0],  # the last column is next to the first
+            [4.0, 4.0, 7.0, 7.0, 7.0, 4.0],
+            [0.0, 0.0, 7.0, 7.0, 7.0, 0.0],  # the last ring does not reach round to the first
+        ]
+    )
+    np.testing.assert_array_equal(nearest[0], expected)
+    assert ProbeStack.of([probe]).nearest_around_m is None
+
+
 # ---------------------------------------------------------------- the simulator's traffic, exact poses
 
 

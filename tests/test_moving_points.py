@@ -148,3 +148,29 @@ def test_a_guess_turned_within_its_uncertainty_does_not_see_through_a_far_wall()
     pose_covariance = np.diag([np.radians(0.5) ** 2] * 3 + [1e-6] * 3)  # [w, v]: the pose's own yaw
     moving.note_pose_covariance(pose_covariance, None)
     assert not moving.moving(on_wall, _yawed(-2.0)).any()
+    # a guess whose rotation is not known at all (three sigmas past 90 deg) tells nothing moving
+    lost = np.diag([np.radians(40.0) ** 2] * 3 + [1e-6] * 3)
+    moving.note_pose_covariance(lost, None)
+    assert not moving.moving(on_wall, _yawed(-2.0)).any()
+
+
+def test_a_point_at_a_poles_edge_is_not_moving_a_point_in_open_space_is():
+    """Keyframes see a pole 5 m ahead in one column, before a wall at 10 m; the ray of the next
+    column passes the pole's edge and returns from the wall, but the ray beside it hit the pole."""
+    rings, azimuths = np.meshgrid(np.arange(len(MODEL.elevation_deg)), np.arange(-25.0, 25.0, 0.2), indexing="ij")
+    pole_azimuth = azimuths[0][np.argmin(np.abs(azimuths[0] - 3.1))]
+    points = []
+    for ring, azimuth in zip(rings.ravel(), azimuths.ravel()):
+        direction = _ray(int(ring), float(azimuth), 1.0)
+        points.append(direction * ((5.0 if azimuth == pole_azimuth else 10.0) / direction[0]))
+    sweep = _sweep(_cloud(np.array(points), rings.ravel()))
+    moving = MovingPoints.of_config(CONFIG)
+    assert moving is not None
+    for _ in range(4):
+        moving.without_moving(sweep, sweep, None)
+        moving.add_keyframe(np.eye(4))
+    beside = _ray(8, float(pole_azimuth) + 0.2, 1.0)
+    edge = beside * (5.0 / beside[0])  # in the next column, at the pole's range
+    assert not moving.moving(edge[None], np.eye(4)).any()
+    open_space = _ray(8, float(pole_azimuth) + 1.0, 1.0)
+    assert moving.moving((open_space * (5.0 / open_space[0]))[None], np.eye(4)).all()

@@ -283,9 +283,11 @@ class ProbeStack:
 
     Args:
         n_slots: probes held at most; ``n_rings``, ``n_bins``: their image size.
-        neighbourhood: also keep ``nearest_around_m``, per pixel the nearest return among it and its
-            eight neighbours (rings and columns next to it; 0 where none of them holds one), for
-            :func:`voxel_evidence` with ``neighbourhood``; None without.
+        neighbourhood: also keep ``nearest_around_m``, (n_slots, n_rings, n_bins) float32 metres:
+            per pixel the nearest return among it and its eight neighbours (the rings above and
+            below, none past the first and last ring; the columns either side, wrapping round the
+            sweep; 0 where none of them holds one), for :func:`voxel_evidence` with
+            ``neighbourhood``; None without.
     """
 
     def __init__(self, n_slots: int, n_rings: int, n_bins: int, *, neighbourhood: bool = False) -> None:
@@ -354,9 +356,14 @@ def voxel_evidence(
         elevation_rad: (rings,) ascending beam elevations of the sensor.
         normals_world: optional (V,3) mean of each voxel's unit surface normals, each turned towards
             the sensor that saw it (shorter than 1 where they disagree, 0 where unknown).
+        neighbourhood: a miss also needs the nearest return around the ray's pixel beyond the
+            centroid by the same ``along + beyond`` as the pixel's own.
 
     Returns:
         (V,) int hits and (V,) int misses.
+
+    Raises:
+        ValueError: ``neighbourhood`` with a stack made without it.
     """
     n_voxels = len(centroids_world)
     slots = np.asarray(slots, dtype=np.int64)

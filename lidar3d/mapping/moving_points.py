@@ -50,6 +50,10 @@ from lidar3d.mapping.sweep import SweepFeatures
 
 __all__ = ["MovingPoints"]
 
+# The grazing slack's angle is capped short of 90 degrees, whose tangent would turn it round: at
+# 89 degrees a ray must return some 57 times the point's range beyond it, which no ray does.
+_MAX_SLACK_ANGLE_DEG = 89.0
+
 
 class MovingPoints:
     """The range images of the latest keyframes, and the test of a sweep's points against them.
@@ -108,8 +112,9 @@ class MovingPoints:
         model's (6,6) ``step_information`` over one scan (``[tx, ty, tz, roll, pitch, yaw]``, m and
         rad: the prior of the scan just tracked, the next one's differs little; None: no vehicle
         model yet). A ray then sees through a point only beyond three of the largest translation
-        sigmas more than the margin, and beyond the grazing slack of three of the largest rotation
-        sigmas (pose and step) more than ``dynamic.pose_angle_deg``."""
+        sigmas more than the margin, and beyond the grazing slack of ``dynamic.pose_angle_deg``
+        plus three rotation sigmas, sqrt(largest pose variance + largest step variance) (at most
+        :data:`_MAX_SLACK_ANGLE_DEG`: a guess that uncertain tells nothing moving)."""
         step_variance = 0.0
         if step_information is not None and np.isfinite(step_information).all():
             step_variance = _largest_variance(np.linalg.inv(step_information)[3:, 3:])
@@ -135,7 +140,9 @@ class MovingPoints:
         config = dataclasses.replace(
             self.config,
             range_margin_m=self.config.range_margin_m + 3.0 * self._pose_sigma_m,
-            pose_angle_deg=self.config.pose_angle_deg + 3.0 * float(np.degrees(self._angle_sigma_rad)),
+            pose_angle_deg=min(
+                self.config.pose_angle_deg + 3.0 * float(np.degrees(self._angle_sigma_rad)), _MAX_SLACK_ANGLE_DEG
+            ),
         )
         slots = np.arange(len(self))
         hits, misses = voxel_evidence(world, self._stack, slots, self._elevation_rad, config, neighbourhood=True)
