@@ -195,7 +195,7 @@ class SlamPipeline:
         pose_covariance = self._pose_uncertainty.add(track.T_world_lidar, dt_s, rows_information)
         if self.moving_points is not None:
             self.moving_points.note_pose_covariance(
-                pose_covariance, track.prior.information if track.prior is not None else None
+                pose_covariance, track.prior.rotation_variance_rad2() if track.prior is not None else 0.0
             )
         health = self.health.assess(stamp_ns, scan_measures(track, previous, self.config.health, pose_covariance))
         self.stats.add_timings(track.timings_ms)

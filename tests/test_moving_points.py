@@ -9,6 +9,7 @@ import numpy as np
 from lidar3d.config import Config, MappingConfig
 from lidar3d.features.records import FeatureCloud, FeatureSet
 from lidar3d.mapping.moving_points import MovingPoints
+from lidar3d.mapping.registration import PosePrior
 from lidar3d.mapping.sweep import SweepFeatures
 
 MODEL = Config().sensor.resolved_model
@@ -137,20 +138,19 @@ def test_a_guess_turned_within_its_uncertainty_does_not_see_through_a_far_wall()
     # street, where the keyframes' rays (and the rays around them) went 14 m on
     assert moving.moving(on_wall, _yawed(-2.0)).all()
 
-    def step_information(yaw_sigma_deg: float) -> np.ndarray:
-        return np.diag([1e4] * 3 + [1e10] * 2 + [np.radians(yaw_sigma_deg) ** -2])
-
-    moving.note_pose_covariance(None, step_information(0.5))  # the vehicle model's yaw over one step
+    moving.note_pose_covariance(None, np.radians(0.5) ** 2)  # the vehicle model's yaw over one step
     assert not moving.moving(on_wall, _yawed(-1.0)).any()
     assert not moving.moving(on_wall, _yawed(-2.0)).any()  # within three sigmas
-    moving.note_pose_covariance(None, step_information(0.1))
+    moving.note_pose_covariance(None, np.radians(0.1) ** 2)
     assert moving.moving(on_wall, _yawed(-2.0)).all()  # beyond them
+    prior = PosePrior(np.eye(4), np.diag([1e4] * 3 + [1e10, 1e10, np.radians(0.5) ** -2]))  # [t, r]
+    assert np.isclose(prior.rotation_variance_rad2(), np.radians(0.5) ** 2)
     pose_covariance = np.diag([np.radians(0.5) ** 2] * 3 + [1e-6] * 3)  # [w, v]: the pose's own yaw
-    moving.note_pose_covariance(pose_covariance, None)
+    moving.note_pose_covariance(pose_covariance)
     assert not moving.moving(on_wall, _yawed(-2.0)).any()
     # a guess whose rotation is not known at all (three sigmas past 90 deg) tells nothing moving
     lost = np.diag([np.radians(40.0) ** 2] * 3 + [1e-6] * 3)
-    moving.note_pose_covariance(lost, None)
+    moving.note_pose_covariance(lost)
     assert not moving.moving(on_wall, _yawed(-2.0)).any()
 
 

@@ -286,8 +286,8 @@ class ProbeStack:
         neighbourhood: also keep ``nearest_around_m``, (n_slots, n_rings, n_bins) float32 metres:
             per pixel the nearest return among it and its eight neighbours (the rings above and
             below, none past the first and last ring; the columns either side, wrapping round the
-            sweep; 0 where none of them holds one), for :func:`voxel_evidence` with
-            ``neighbourhood``; None without.
+            sweep; 0 where none of them holds one), which :func:`voxel_evidence` then asks of
+            every ray that sees through; None without.
     """
 
     def __init__(self, n_slots: int, n_rings: int, n_bins: int, *, neighbourhood: bool = False) -> None:
@@ -325,8 +325,6 @@ def voxel_evidence(
     elevation_rad: np.ndarray,
     config: DynamicConfig,
     normals_world: np.ndarray | None = None,
-    *,
-    neighbourhood: bool = False,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Hits and misses of each voxel centroid over the probes in ``slots`` of ``stack`` (see the
     module docstring).
@@ -344,8 +342,8 @@ def voxel_evidence(
     go through it, however far it returns: a ray skimming over a car's roof, or along a slope,
     passes the roof's voxels within the pass tolerance, and says nothing about them.
 
-    With ``neighbourhood`` (a stack made with it), the rays of the pixels around must have gone
-    beyond it too (the nearest return of the pixel and its eight neighbours): a point at an
+    With a stack that keeps the neighbourhood (:class:`ProbeStack`), the rays of the pixels around
+    must have gone beyond it too (the nearest return of the pixel and its eight neighbours): a point at an
     object's silhouette, which the ray beside the object passes within the tolerance, is not taken
     to be seen through by it while the next ray hit the object; the space a moving object has left
     is seen through by every ray around.
@@ -356,14 +354,9 @@ def voxel_evidence(
         elevation_rad: (rings,) ascending beam elevations of the sensor.
         normals_world: optional (V,3) mean of each voxel's unit surface normals, each turned towards
             the sensor that saw it (shorter than 1 where they disagree, 0 where unknown).
-        neighbourhood: a miss also needs the nearest return around the ray's pixel beyond the
-            centroid by the same ``along + beyond`` as the pixel's own.
 
     Returns:
         (V,) int hits and (V,) int misses.
-
-    Raises:
-        ValueError: ``neighbourhood`` with a stack made without it.
     """
     n_voxels = len(centroids_world)
     slots = np.asarray(slots, dtype=np.int64)
@@ -400,9 +393,7 @@ def voxel_evidence(
         sine = stack.sin_grazing.reshape(-1)[pixel].astype(np.float64)
         beyond = np.maximum(margin, offset / np.maximum(sine, 1e-3))
     through = return_m > along + beyond
-    if neighbourhood:
-        if stack.nearest_around_m is None:
-            raise ValueError("the probes' stack was made without the neighbourhood")
+    if stack.nearest_around_m is not None:  # the rays around too, by the same along + beyond
         through &= stack.nearest_around_m.reshape(-1)[pixel] > along + beyond
     if normals_world is not None:
         # How far in front of the voxel's surface the ray passes: n . (closest point of the ray - c).

@@ -85,7 +85,7 @@ from typing import Protocol
 import numpy as np
 
 from lidar3d.config import HealthConfig
-from lidar3d.mapping.registration import observed_share
+from lidar3d.mapping.registration import largest_variance, observed_share
 from lidar3d.mapping.se3 import exp_se3, invert, xyz_rpy_from_pose
 from lidar3d.mapping.tracker import TrackResult
 from lidar3d.summary import HealthStretch, HealthSummary
@@ -319,9 +319,9 @@ def scan_measures(
 def _sigma_m(covariance: np.ndarray, lever_m: float) -> float:
     """The largest translation standard deviation plus ``lever_m`` times the largest rotation one
     of a (6,6) covariance over ``[w, v]``, metres."""
-    rotation_var = float(np.linalg.eigvalsh(covariance[:3, :3]).max())
-    translation_var = float(np.linalg.eigvalsh(covariance[3:, 3:]).max())
-    return float(np.sqrt(max(translation_var, 0.0)) + lever_m * np.sqrt(max(rotation_var, 0.0)))
+    return float(
+        np.sqrt(largest_variance(covariance[3:, 3:])) + lever_m * np.sqrt(largest_variance(covariance[:3, :3]))
+    )
 
 
 def _beyond_shortfall(difference: float, shortfall: float) -> float:

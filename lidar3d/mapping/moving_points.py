@@ -28,8 +28,9 @@ three of the largest rotation sigmas of the guess. That rotation uncertainty is 
 to the map plus one step of the vehicle model (its bounded yaw and tilt accelerations): a turn's
 onset, which a prediction cannot expect, turns the whole sweep by up to that much, and a far wall
 turned by it lands where a keyframe's ray went on. And a ray sees through a point only when the
-rays around it went beyond it too (``voxel_evidence(..., neighbourhood=True)``): at an object's
-silhouette the ray that just missed the object passes its edge points.
+rays around it went beyond it too (a :class:`~lidar3d.mapping.free_space.ProbeStack` with the
+neighbourhood): at an object's silhouette the ray that just missed the object passes its edge
+points.
 
 Off by default (``moving_probe_keyframes`` = 0): over the evaluation suite it makes some drives
 much better and others much worse (docs/stages/odometry-mapping.md#moving-objects).
@@ -46,6 +47,7 @@ import numpy as np
 
 from lidar3d.config import Config, DynamicConfig
 from lidar3d.mapping.free_space import ProbeStack, SweepProbe, voxel_evidence
+from lidar3d.mapping.registration import largest_variance
 from lidar3d.mapping.sweep import SweepFeatures
 
 __all__ = ["MovingPoints"]
@@ -105,25 +107,23 @@ class MovingPoints:
         self._stack.put(self._n_added % self._n_slots, probe)
         self._n_added += 1
 
-    def note_pose_covariance(self, covariance: np.ndarray | None, step_information: np.ndarray | None = None) -> None:
+    def note_pose_covariance(self, covariance: np.ndarray | None, step_rotation_variance_rad2: float = 0.0) -> None:
         """How uncertain the guess of the next sweep is: the latest pose's (6,6) ``covariance``
         relative to the map (tangent ``[w, v]``, lidar frame;
-        :class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`; None: unknown) and the vehicle
-        model's (6,6) ``step_information`` over one scan (``[tx, ty, tz, roll, pitch, yaw]``, m and
-        rad: the prior of the scan just tracked, the next one's differs little; None: no vehicle
-        model yet). A ray then sees through a point only beyond three of the largest translation
-        sigmas more than the margin, and beyond the grazing slack of ``dynamic.pose_angle_deg``
-        plus three rotation sigmas, sqrt(largest pose variance + largest step variance) (at most
-        :data:`_MAX_SLACK_ANGLE_DEG`: a guess that uncertain tells nothing moving)."""
-        step_variance = 0.0
-        if step_information is not None and np.isfinite(step_information).all():
-            step_variance = _largest_variance(np.linalg.inv(step_information)[3:, 3:])
+        :class:`~lidar3d.mapping.pose_uncertainty.PoseUncertainty`; None: unknown) and the largest
+        rotation variance of the vehicle model over one scan (rad^2: its prior of the scan just
+        tracked, :meth:`~lidar3d.mapping.registration.PosePrior.rotation_variance_rad2`, the next
+        one's differs little; 0: no vehicle model yet). A ray then sees through a point only beyond
+        three of the largest translation sigmas more than the margin, and beyond the grazing slack
+        of ``dynamic.pose_angle_deg`` plus three rotation sigmas, sqrt(largest pose variance + step
+        variance) (at most :data:`_MAX_SLACK_ANGLE_DEG`: a guess that uncertain tells nothing
+        moving)."""
         if covariance is None or not np.isfinite(covariance).all():
             self._pose_sigma_m = 0.0
-            self._angle_sigma_rad = float(np.sqrt(step_variance))
+            self._angle_sigma_rad = float(np.sqrt(step_rotation_variance_rad2))
             return
-        self._pose_sigma_m = float(np.sqrt(_largest_variance(covariance[3:, 3:])))
-        self._angle_sigma_rad = float(np.sqrt(_largest_variance(covariance[:3, :3]) + step_variance))
+        self._pose_sigma_m = float(np.sqrt(largest_variance(covariance[3:, 3:])))
+        self._angle_sigma_rad = float(np.sqrt(largest_variance(covariance[:3, :3]) + step_rotation_variance_rad2))
 
     def clear(self) -> None:
         """Forget the images (the keyframes moved: a loop closure)."""
@@ -145,7 +145,7 @@ class MovingPoints:
             ),
         )
         slots = np.arange(len(self))
-        hits, misses = voxel_evidence(world, self._stack, slots, self._elevation_rad, config, neighbourhood=True)
+        hits, misses = voxel_evidence(world, self._stack, slots, self._elevation_rad, config)
         return (misses >= self.config.min_misses) & (misses >= self.config.miss_ratio * hits)
 
     def without_moving(
@@ -165,8 +165,3 @@ class MovingPoints:
             return sweep, deskewed
         moving = dict(zip(names, np.split(flags, np.cumsum([len(c) for c in clouds])[:-1])))
         return sweep.without(moving), deskewed.without(moving)
-
-
-def _largest_variance(covariance: np.ndarray) -> float:
-    """The largest eigenvalue of a (3,3) covariance block, at least 0."""
-    return max(float(np.linalg.eigvalsh(covariance).max()), 0.0)

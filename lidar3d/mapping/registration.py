@@ -49,6 +49,7 @@ __all__ = [
     "PosePrior",
     "SolveResult",
     "SweepTurn",
+    "largest_variance",
     "line_rows_from_directions",
     "observed_share",
     "plane_rows_from_normals",
@@ -122,9 +123,18 @@ class PosePrior:
         """How far (1 sigma, m) the prior's uncertainty may move a point ``lever_m`` from the
         origin: the largest translation sigma plus the lever times the largest rotation sigma."""
         covariance = np.linalg.inv(self.information)
-        sigma_t = float(np.sqrt(np.linalg.eigvalsh(covariance[:3, :3])[-1]))
-        sigma_r = float(np.sqrt(np.linalg.eigvalsh(covariance[3:, 3:])[-1]))
+        sigma_t = float(np.sqrt(largest_variance(covariance[:3, :3])))
+        sigma_r = float(np.sqrt(largest_variance(covariance[3:, 3:])))
         return sigma_t + lever_m * sigma_r
+
+    def rotation_variance_rad2(self) -> float:
+        """The largest variance of the prior's rotation (rad^2)."""
+        return largest_variance(np.linalg.inv(self.information)[3:, 3:])
+
+
+def largest_variance(covariance: np.ndarray) -> float:
+    """The largest eigenvalue of a symmetric (3,3) covariance block (m^2 or rad^2), at least 0."""
+    return max(float(np.linalg.eigvalsh(covariance).max()), 0.0)
 
 
 @dataclass(frozen=True, slots=True)
