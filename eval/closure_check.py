@@ -25,6 +25,7 @@ Usage::
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -162,7 +163,11 @@ def check_closures(run_dir: str | Path, truth: str | Path, sweep_s: float = 0.1)
     worst_m = max((e["error_m"] for e in scored), default=None)
     worst_deg = max((e["error_deg"] for e in scored), default=None)
     worst_sweep_deg = max((e["sweep_error_deg"] for e in scored), default=None)
+    metadata = _truth_path(Path(truth)).parent / "metadata.json"
+    revisits = revisit_closures(scored, stamps, json.loads(metadata.read_text())) if metadata.is_file() else None
     return {
+        "revisits": revisits,
+        "revisits_closed": None if revisits is None else sum(r["closed"] for r in revisits),
         "closures": len(scored),
         "worst_m": None if worst_m is None else round(worst_m, 4),
         "worst_deg": None if worst_deg is None else round(worst_deg, 3),
@@ -170,6 +175,35 @@ def check_closures(run_dir: str | Path, truth: str | Path, sweep_s: float = 0.1)
         "met": worst_m is None or (worst_m <= MAX_ERROR_M and worst_deg is not None and worst_deg <= MAX_ERROR_DEG),
         "edges": scored,
     }
+
+
+def revisit_closures(scored: list[dict], keyframe_stamps_ns: np.ndarray, metadata: dict) -> list[dict]:
+    """Per revisit the simulator lists (``metadata["revisits"]``: the scans that pass a place
+    driven before), the accepted closures of a keyframe inside it to a keyframe before it, and
+    whether one of them closes it right (issue 16: "every revisit closed correctly": a closure
+    within ``MAX_ERROR_M`` / ``MAX_ERROR_DEG`` of the truth). ``scored``: the edges of
+    :func:`check_closures`; ``keyframe_stamps_ns``: (K,) the run's keyframe stamps."""
+    slack_ns = int(SPAN_SLACK_S * 1e9)
+    out = []
+    for revisit in metadata.get("revisits", []):
+        query_ns = [pair["query_stamp_ns"] for pair in revisit["pairs"]]
+        first, last = min(query_ns) - slack_ns, max(query_ns) + slack_ns
+        inside = [
+            e
+            for e in scored
+            if first <= keyframe_stamps_ns[e["query"]] <= last and keyframe_stamps_ns[e["match"]] < first
+        ]
+        right = [e for e in inside if e["error_m"] <= MAX_ERROR_M and e["error_deg"] <= MAX_ERROR_DEG]
+        out.append(
+            {
+                "first_scan": int(revisit["query_first"]),
+                "last_scan": int(revisit["query_last"]),
+                "closures": len(inside),
+                "right": len(right),
+                "closed": bool(right),
+            }
+        )
+    return out
 
 
 def format_report(report: dict) -> str:
@@ -181,6 +215,8 @@ def format_report(report: dict) -> str:
         f"(target {MAX_ERROR_M * 100:g} cm / {MAX_ERROR_DEG:g} deg: {'met' if report['met'] else 'not met'})"
     ]
     lines.append(f"  against the truth's constant-twist fit over each sweep: worst {report['worst_sweep_deg']:.2f} deg")
+    if report.get("revisits") is not None:
+        lines.append(f"  revisits closed right: {report['revisits_closed']} of {len(report['revisits'])}")
     for e in sorted(report["edges"], key=lambda e: -e["error_m"])[:3]:
         lines.append(f"  keyframe {e['query']} -> {e['match']}: {e['error_m'] * 100:.1f} cm, {e['error_deg']:.2f} deg")
     return "\n".join(lines)

@@ -75,6 +75,32 @@ def test_closure_errors_against_the_truth(tmp_path, capsys):
     assert text == "2; worst 25.0 cm / 0.10°; 5.0 % of the run"
 
 
+def test_each_revisit_is_closed_only_by_a_right_closure_inside_it(tmp_path, capsys):
+    """The simulator's revisits (metadata.json beside the truth): a revisit is closed when a closure
+    of a keyframe inside it, to a keyframe before it, is within the target."""
+    import json
+
+    slid = exp_se3(np.array([0.0, 0.25, 0.0, 0.0, 0.0, 0.0]))
+    run, truth = _run(tmp_path, [np.eye(4), slid])  # keyframes 20 and 21 (100 s, 105 s) -> 0 and 1
+    start = 1_700_000_000 * S
+
+    def revisit(first_s: float, last_s: float) -> dict:
+        stamps = [start + int(t * S) for t in np.arange(first_s, last_s + 0.05, 0.1)]
+        pairs = [{"query_stamp_ns": stamp} for stamp in stamps]
+        return {"query_first": int(first_s * 10), "query_last": int(last_s * 10), "pairs": pairs}
+
+    metadata = {"revisits": [revisit(99.0, 101.0), revisit(104.0, 106.0), revisit(107.0, 109.0)]}
+    (tmp_path / "metadata.json").write_text(json.dumps(metadata))
+    report = check_closures(run, truth)
+    closed = [(r["closures"], r["right"], r["closed"]) for r in report["revisits"]]
+    assert closed == [(1, 1, True), (1, 0, False), (0, 0, False)]
+    assert report["revisits_closed"] == 1
+    assert closure_check_main([str(run), str(truth)]) == 2
+    assert "revisits closed right: 1 of 3" in capsys.readouterr().out
+    (tmp_path / "metadata.json").unlink()  # no simulator metadata: nothing said of revisits
+    assert check_closures(run, truth)["revisits"] is None
+
+
 def test_good_closures_meet_the_target_and_bad_folders_say_why(tmp_path, capsys):
     run, truth = _run(tmp_path, [np.eye(4)])
     report = check_closures(run, truth)
