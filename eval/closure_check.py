@@ -163,8 +163,8 @@ def check_closures(run_dir: str | Path, truth: str | Path, sweep_s: float = 0.1)
     worst_m = max((e["error_m"] for e in scored), default=None)
     worst_deg = max((e["error_deg"] for e in scored), default=None)
     worst_sweep_deg = max((e["sweep_error_deg"] for e in scored), default=None)
-    metadata = _truth_path(Path(truth)).parent / "metadata.json"
-    revisits = revisit_closures(scored, stamps, json.loads(metadata.read_text())) if metadata.is_file() else None
+    metadata = _simulator_metadata(_truth_path(Path(truth)).parent / "metadata.json")
+    revisits = None if metadata is None else revisit_closures(scored, stamps, metadata)
     return {
         "revisits": revisits,
         "revisits_closed": None if revisits is None else sum(r["closed"] for r in revisits),
@@ -175,6 +175,24 @@ def check_closures(run_dir: str | Path, truth: str | Path, sweep_s: float = 0.1)
         "met": worst_m is None or (worst_m <= MAX_ERROR_M and worst_deg is not None and worst_deg <= MAX_ERROR_DEG),
         "edges": scored,
     }
+
+
+def _simulator_metadata(path: Path) -> dict | None:
+    """The simulator's ``metadata.json`` (format ``lidar3d-sim/...``), or None without one: a file of
+    another kind there is not read as one.
+
+    Raises:
+        Lidar3dError: the file is not JSON.
+    """
+    if not path.is_file():
+        return None
+    try:
+        metadata = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
+        raise Lidar3dError(f"{path}: cannot read the simulator's metadata ({err})") from err
+    if not isinstance(metadata, dict) or not str(metadata.get("format", "")).startswith("lidar3d-sim"):
+        return None
+    return metadata
 
 
 def revisit_closures(scored: list[dict], keyframe_stamps_ns: np.ndarray, metadata: dict) -> list[dict]:
@@ -198,6 +216,7 @@ def revisit_closures(scored: list[dict], keyframe_stamps_ns: np.ndarray, metadat
             {
                 "first_scan": int(revisit["query_first"]),
                 "last_scan": int(revisit["query_last"]),
+                "keyframes": int(np.count_nonzero((keyframe_stamps_ns >= first) & (keyframe_stamps_ns <= last))),
                 "closures": len(inside),
                 "right": len(right),
                 "closed": bool(right),
@@ -206,17 +225,26 @@ def revisit_closures(scored: list[dict], keyframe_stamps_ns: np.ndarray, metadat
     return out
 
 
+def _revisits_line(report: dict) -> list[str]:
+    """The revisit line of :func:`format_report` (none without the simulator's revisits)."""
+    revisits = report.get("revisits")
+    if revisits is None:
+        return []
+    without = sum(r["keyframes"] == 0 for r in revisits)
+    unseen = f" ({without} with no keyframe inside)" if without else ""
+    return [f"  revisits closed right: {report['revisits_closed']} of {len(revisits)}{unseen}"]
+
+
 def format_report(report: dict) -> str:
-    """A few lines: the count, the worst errors and the three worst closures."""
+    """A few lines: the count, the worst errors, the revisits closed and the three worst closures."""
     if not report["closures"]:
-        return "no loop closures"
+        return "\n".join(["no loop closures", *_revisits_line(report)])
     lines = [
         f"{report['closures']} loop closures; worst {report['worst_m'] * 100:.1f} cm, {report['worst_deg']:.2f} deg "
         f"(target {MAX_ERROR_M * 100:g} cm / {MAX_ERROR_DEG:g} deg: {'met' if report['met'] else 'not met'})"
     ]
     lines.append(f"  against the truth's constant-twist fit over each sweep: worst {report['worst_sweep_deg']:.2f} deg")
-    if report.get("revisits") is not None:
-        lines.append(f"  revisits closed right: {report['revisits_closed']} of {len(report['revisits'])}")
+    lines += _revisits_line(report)
     for e in sorted(report["edges"], key=lambda e: -e["error_m"])[:3]:
         lines.append(f"  keyframe {e['query']} -> {e['match']}: {e['error_m'] * 100:.1f} cm, {e['error_deg']:.2f} deg")
     return "\n".join(lines)

@@ -82,7 +82,7 @@ def _removed_by_range(keys: np.ndarray, seen_from_m: np.ndarray, dynamic_only: n
 
 def _score(true_world: np.ndarray, moving: np.ndarray, removed: np.ndarray, seen_from_m: np.ndarray) -> dict:
     """Removal and keeping scored on the points' TRUE positions (N,3) at ``VOXEL_M`` voxels;
-    ``seen_from_m`` (N,): each point's range from the true sensor position."""
+    ``seen_from_m`` (N,): each point's range from the sensor as it fired the point."""
     keys = voxel_keys(true_world, VOXEL_M)
     static = np.unique(keys[~moving])
     dynamic_only = np.setdiff1d(np.unique(keys[moving]), static)
@@ -129,7 +129,7 @@ def removal(scenario: str, seed: int, duration_s: float | None, work: Path) -> d
             PlacedSweep(final.points[keep], transform_points(poses[i], final.points[keep]), ring, intensity, poses[i])
         )
         true_world.append(world)
-        seen_from.append(np.linalg.norm(world - T[:3, 3], axis=1))
+        seen_from.append(np.linalg.norm(simulated.scan.points[keep], axis=1))  # from where the sensor fired it
         moving.append(np.isin(simulated.object_class[keep], [int(c) for c in DYNAMIC_CLASSES]))
     true_all, moving_all, seen_all = np.concatenate(true_world), np.concatenate(moving), np.concatenate(seen_from)
     t0 = time.perf_counter()

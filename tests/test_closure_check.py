@@ -34,9 +34,12 @@ def _circle(stamps_ns: np.ndarray) -> np.ndarray:
     return T
 
 
-def _run(tmp_path: Path, loop_errors: list[np.ndarray]) -> tuple[Path, Path]:
-    """A run folder with keyframes every 5 s of a 110 s drive and a loop edge per error (keyframe
-    20 + i against keyframe i, its measurement the truth times the error); and the truth file."""
+def _run(
+    tmp_path: Path, loop_errors: list[np.ndarray], more_loops: tuple[tuple[int, int, np.ndarray], ...] = ()
+) -> tuple[Path, Path]:
+    """A run folder with keyframes every 5 s of a 110 s drive (keyframe k at 5k s) and a loop edge
+    per error (keyframe 20 + i against keyframe i, its measurement the truth times the error), and
+    one per ``(match, query, error)`` of ``more_loops``; and the truth file."""
     truth_stamps = np.arange(0, 111 * S, S // 10, dtype=np.int64) + 1_700_000_000 * S
     truth = _circle(truth_stamps)
     keyframe_stamps = truth_stamps[::50]
@@ -49,9 +52,10 @@ def _run(tmp_path: Path, loop_errors: list[np.ndarray]) -> tuple[Path, Path]:
         GraphEdge(k - 1, k, invert(keyframes[k - 1]) @ keyframes[k], np.eye(6), "odometry")
         for k in range(1, len(keyframes))
     ]
-    for i, error in enumerate(loop_errors):
-        T_true = invert(keyframes[i]) @ keyframes[20 + i]
-        edges.append(GraphEdge(i, 20 + i, T_true @ error, np.eye(6), "loop"))
+    loops = [(i, 20 + i, error) for i, error in enumerate(loop_errors)] + list(more_loops)
+    for match, query, error in loops:
+        T_true = invert(keyframes[match]) @ keyframes[query]
+        edges.append(GraphEdge(match, query, T_true @ error, np.eye(6), "loop"))
     (run / "pose_graph.g2o").write_text(format_g2o(keyframes, edges), encoding="utf-8")
     return run, tmp_path / "truth.txt"
 
@@ -77,28 +81,63 @@ def test_closure_errors_against_the_truth(tmp_path, capsys):
 
 def test_each_revisit_is_closed_only_by_a_right_closure_inside_it(tmp_path, capsys):
     """The simulator's revisits (metadata.json beside the truth): a revisit is closed when a closure
-    of a keyframe inside it, to a keyframe before it, is within the target."""
+    of a keyframe inside it (its query stamps, inclusive, 5 ms of slack), to a keyframe before it,
+    is within the target (20 cm, 1 deg)."""
     import json
 
     slid = exp_se3(np.array([0.0, 0.25, 0.0, 0.0, 0.0, 0.0]))
-    run, truth = _run(tmp_path, [np.eye(4), slid])  # keyframes 20 and 21 (100 s, 105 s) -> 0 and 1
+    turned = exp_se3(np.array([0.05, 0.0, 0.0, 0.0, 0.0, np.radians(2.0)]))
+    more = (
+        (13, 15, np.eye(4)),  # 75 s -> 65 s: both inside the revisit 64.9-75.1 s, so it closes nothing
+        (2, 16, np.eye(4)),  # 80 s, 5 ms (the slack) after the revisit's last query stamp 79.995 s
+        (3, 17, np.eye(4)),  # 85 s, 10 ms before the revisit 85.01-87 s
+        (4, 18, turned),  # 90 s: 5 cm but 2 deg off
+    )
+    run, truth = _run(tmp_path, [np.eye(4), slid], more)  # and keyframes 20, 21 (100 s, 105 s) -> 0, 1
     start = 1_700_000_000 * S
 
     def revisit(first_s: float, last_s: float) -> dict:
-        stamps = [start + int(t * S) for t in np.arange(first_s, last_s + 0.05, 0.1)]
+        stamps = [start + round(t * S) for t in np.linspace(first_s, last_s, round((last_s - first_s) * 10) + 1)]
         pairs = [{"query_stamp_ns": stamp} for stamp in stamps]
-        return {"query_first": int(first_s * 10), "query_last": int(last_s * 10), "pairs": pairs}
+        return {"query_first": round(first_s * 10), "query_last": round(last_s * 10), "pairs": pairs}
 
-    metadata = {"revisits": [revisit(99.0, 101.0), revisit(104.0, 106.0), revisit(107.0, 109.0)]}
+    spans = [(99.0, 101.0), (104.0, 106.0), (107.0, 109.0), (64.9, 75.1), (78.0, 79.995), (85.01, 87.0), (89.0, 91.0)]
+    metadata = {"format": "lidar3d-sim/1", "revisits": [revisit(a, b) for a, b in spans]}
     (tmp_path / "metadata.json").write_text(json.dumps(metadata))
     report = check_closures(run, truth)
-    closed = [(r["closures"], r["right"], r["closed"]) for r in report["revisits"]]
-    assert closed == [(1, 1, True), (1, 0, False), (0, 0, False)]
-    assert report["revisits_closed"] == 1
+    closed = [(r["keyframes"], r["closures"], r["right"], r["closed"]) for r in report["revisits"]]
+    assert closed == [
+        (1, 1, 1, True),
+        (1, 1, 0, False),  # 25 cm off
+        (0, 0, 0, False),  # no keyframe inside
+        (3, 0, 0, False),  # the only closure is to a keyframe inside the revisit
+        (1, 1, 1, True),
+        (0, 0, 0, False),
+        (1, 1, 0, False),  # 2 deg off
+    ]
+    assert report["revisits_closed"] == 2
     assert closure_check_main([str(run), str(truth)]) == 2
-    assert "revisits closed right: 1 of 3" in capsys.readouterr().out
-    (tmp_path / "metadata.json").unlink()  # no simulator metadata: nothing said of revisits
+    assert "revisits closed right: 2 of 7 (2 with no keyframe inside)" in capsys.readouterr().out
+
+
+def test_revisits_are_reported_without_closures_and_only_from_the_simulators_metadata(tmp_path, capsys):
+    import json
+
+    from closure_check import format_report
+
+    run, truth = _run(tmp_path, [])
+    revisit = {"query_first": 990, "query_last": 1010, "pairs": [{"query_stamp_ns": (1_700_000_000 + 100) * S}]}
+    (tmp_path / "metadata.json").write_text(json.dumps({"format": "lidar3d-sim/1", "revisits": [revisit]}))
+    report = check_closures(run, truth)
+    assert format_report(report) == "no loop closures\n  revisits closed right: 0 of 1"
+    (tmp_path / "metadata.json").write_text(json.dumps({"revisits": [revisit]}))  # not the simulator's
     assert check_closures(run, truth)["revisits"] is None
+    (tmp_path / "metadata.json").unlink()
+    assert check_closures(run, truth)["revisits"] is None
+    (tmp_path / "metadata.json").write_text("{not json")
+    assert closure_check_main([str(run), str(truth)]) == 1
+    err = capsys.readouterr().err
+    assert "metadata.json: cannot read the simulator's metadata" in err and len(err.strip().splitlines()) == 1
 
 
 def test_good_closures_meet_the_target_and_bad_folders_say_why(tmp_path, capsys):
