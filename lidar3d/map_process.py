@@ -44,6 +44,7 @@ from lidar3d.errors import Lidar3dError
 from lidar3d.io.piece_spill import SpilledPieceStore
 from lidar3d.mapping.dense_map import DenseMap, MapClouds
 from lidar3d.mapping.map_pieces import MapAnchor, MapPieces
+from lidar3d.parent_watch import ParentGone, get_while_parent_lives
 from lidar3d.records import Scan
 
 __all__ = ["DenseMapProcess"]
@@ -69,7 +70,11 @@ def _serve(
     sweep_ms: list[float] = []
     try:
         while True:
-            kind, *args = requests.get()
+            try:
+                kind, *args = get_while_parent_lives(requests, _POLL_S)
+            except ParentGone:
+                replies.cancel_join_thread()  # no reader is left for what the queue still holds
+                return
             if kind == "add":
                 if error is None:  # after an error the map stays as it was: no sweep in it is missing
                     t0 = time.perf_counter()

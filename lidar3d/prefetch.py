@@ -22,6 +22,7 @@ from lidar3d.errors import Lidar3dError
 from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.io.scan_reading import ReadStats
 from lidar3d.io.scan_source import open_scan_source
+from lidar3d.parent_watch import ParentGone, put_while_parent_lives
 
 __all__ = ["InlineScanStream", "PreparedScanStream", "open_prepared_scans"]
 
@@ -45,12 +46,17 @@ def _produce(paths: list[str], config: Config, start: int, stop: int | None, out
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop
     try:
         with open_scan_source(paths, config) as source:
-            out.put(("open", source.topic, len(source)))
+            put_while_parent_lives(out, ("open", source.topic, len(source)), _POLL_S)
             for prepared, read_ms in _prepared(source, config, start, stop):
-                out.put(("scan", prepared, read_ms))
-        out.put(("end", source.stats))
+                put_while_parent_lives(out, ("scan", prepared, read_ms), _POLL_S)
+        put_while_parent_lives(out, ("end", source.stats), _POLL_S)
+    except ParentGone:
+        out.cancel_join_thread()  # no reader is left for what the queue still holds: exit without it
     except BaseException as err:
-        out.put(("error", err))
+        try:
+            put_while_parent_lives(out, ("error", err), _POLL_S)
+        except ParentGone:
+            out.cancel_join_thread()
 
 
 class PreparedScanStream:

@@ -84,7 +84,6 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import signal
     import sys
 
     from lidar3d.batch import BatchProgress, JobResult, JobStatus, ProgressDisplay, RunOptions, run_batch
@@ -112,27 +111,21 @@ def run(args: argparse.Namespace) -> int:
         elif event == "end":
             display[0].close()
 
-    def on_sigterm(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, on_sigterm)
-    try:
-        outcome = run_batch(
-            args.inputs,
-            args.out,
-            config,
-            span_dir=args.span_dir,
-            span_pattern=args.span_pattern,
-            extrinsics=args.extrinsics,
-            workers=args.workers,
-            engine=args.engine,
-            ray_address=args.ray_address,
-            force=args.overwrite,
-            run_options=run_options,
-            on_progress=on_progress,
-        )
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+    # SIGTERM interrupts the batch as Ctrl-C does (lidar3d.cli.main): its bags are marked, it can resume.
+    outcome = run_batch(
+        args.inputs,
+        args.out,
+        config,
+        span_dir=args.span_dir,
+        span_pattern=args.span_pattern,
+        extrinsics=args.extrinsics,
+        workers=args.workers,
+        engine=args.engine,
+        ray_address=args.ray_address,
+        force=args.overwrite,
+        run_options=run_options,
+        on_progress=on_progress,
+    )
 
     counts = {status: n for status, n in outcome.counts.items() if n}
     print(f"{len(outcome.rows)} bags: " + ", ".join(f"{n} {status}" for status, n in counts.items()))
