@@ -13,7 +13,8 @@ blocks while ``depth`` sweeps wait); the other calls wait for the child to take 
 before them. :meth:`~DenseMapProcess.end` fetches the final clouds and ends the child (the pipeline
 calls it at the end of its ``finish``); a proxy dropped without it ends the child too. An error
 raised in the child is raised again, unchanged, by the next call that waits; a child that dies
-raises :class:`~lidar3d.errors.Lidar3dError`. The child ignores SIGINT: on Ctrl-C the pipeline's
+raises :class:`~lidar3d.errors.Lidar3dError`. The child ignores SIGINT and SIGTERM and exits when the
+pipeline's process is gone (:mod:`lidar3d.stop_signals`): on Ctrl-C the pipeline's
 ``finish`` still gets every sweep sent into the map. With loop closure the child keeps the map's
 pieces in its own :class:`~lidar3d.io.piece_spill.SpilledPieceStore`.
 
@@ -29,8 +30,6 @@ import contextlib
 import dataclasses
 import multiprocessing
 import queue as queue_module
-import signal
-import threading
 import time
 import weakref
 from collections.abc import Callable
@@ -39,12 +38,12 @@ from typing import Any
 
 import numpy as np
 
+from lidar3d import stop_signals
 from lidar3d.config import Config
 from lidar3d.errors import Lidar3dError
 from lidar3d.io.piece_spill import SpilledPieceStore
 from lidar3d.mapping.dense_map import DenseMap, MapClouds
 from lidar3d.mapping.map_pieces import MapAnchor, MapPieces
-from lidar3d.parent_watch import ParentGone, get_while_parent_lives
 from lidar3d.records import Scan
 
 __all__ = ["DenseMapProcess"]
@@ -63,18 +62,14 @@ def _serve(
     is answered with ``(kind, value, sweep milliseconds since the last answer)``; an answer of
     clouds is ``("clouds", layout, ...)`` with their arrays following on ``bulk``
     (:func:`_send_arrays`)."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop
+    stop_signals.as_child()
     store = SpilledPieceStore() if in_pieces else None
     dense_map = DenseMap(config, MapPieces(config.mapping.map_voxel_m, store) if in_pieces else None)
     error: BaseException | None = None  # of an add: answered at the next request
     sweep_ms: list[float] = []
     try:
         while True:
-            try:
-                kind, *args = get_while_parent_lives(requests, _POLL_S)
-            except ParentGone:
-                replies.cancel_join_thread()  # no reader is left for what the queue still holds
-                return
+            kind, *args = requests.get()
             if kind == "add":
                 if error is None:  # after an error the map stays as it was: no sweep in it is missing
                     t0 = time.perf_counter()
@@ -102,7 +97,10 @@ def _serve(
                     answer = ("error", err)
             replies.put((*answer, sweep_ms))
             sweep_ms = []
-            _send_arrays(bulk, arrays)
+            try:
+                _send_arrays(bulk, arrays)
+            except OSError:  # the parent went away while reading the map: nothing to send to
+                return
             del arrays
     finally:
         if store is not None:
@@ -129,24 +127,6 @@ def _receive_arrays(bulk: Connection, layout: list[tuple[tuple[int, ...], str]])
     return arrays
 
 
-@contextlib.contextmanager
-def _sigint_deferred():
-    """Hold back a Ctrl-C (SIGINT) until the block ends, then deliver it again: a transfer cut half
-    way would leave the rest of the map in the pipe, to be read as the next answer. Only the main
-    thread receives signals (and may set their handlers); elsewhere nothing is changed."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    caught: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        if caught:
-            signal.raise_signal(signal.SIGINT)
-
-
 def _stop(process, requests: multiprocessing.Queue) -> None:
     """End the child: ask it to stop, then terminate it if it does not."""
     if process.is_alive():
@@ -154,24 +134,10 @@ def _stop(process, requests: multiprocessing.Queue) -> None:
             requests.put(("close",), timeout=_POLL_S)
         process.join(timeout=5)
     if process.is_alive():
-        process.terminate()
+        process.kill()  # it ignores SIGTERM
         process.join(timeout=5)
     requests.close()
     requests.cancel_join_thread()
-
-
-def _start_ignoring_sigint(process) -> None:
-    """Start ``process`` with SIGINT ignored from its first instruction (an ignored signal stays
-    ignored across exec, and Python keeps it so): a Ctrl-C while the child still imports must not
-    kill it, since the parent then still asks it for the map."""
-    if threading.current_thread() is not threading.main_thread():
-        process.start()  # only the main thread may change signal handlers; the child sets its own
-        return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
-    try:
-        process.start()
-    finally:
-        signal.signal(signal.SIGINT, previous)
 
 
 def _answer(dense_map: DenseMap, kind: str, args: list) -> MapClouds | None:
@@ -216,7 +182,7 @@ class DenseMapProcess:
             name="lidar3d-dense-map",
             daemon=True,
         )
-        _start_ignoring_sigint(self._process)
+        stop_signals.start_child(self._process)
         bulk_sender.close()  # the child's copy is the only writer: its end reads as end of file here
         self._final: MapClouds | None = None  # the clouds of the finished map, once the child ended
         self._close = weakref.finalize(self, _stop, self._process, self._requests)
@@ -258,27 +224,30 @@ class DenseMapProcess:
                 continue
 
     def _request(self, kind: str, *args: Any) -> Any:
-        self._send((kind, *args))
-        while True:
-            try:
-                answer, value, sweep_ms = self._replies.get(timeout=_POLL_S)
-                break
-            except queue_module.Empty:
-                self._check_alive()
-        if self._on_sweep_ms is not None:
-            for ms in sweep_ms:
-                self._on_sweep_ms(ms)
-        if answer == "error":
-            raise value
-        if answer == "clouds":
-            try:
-                with _sigint_deferred():
+        """Send a request and wait for its whole answer. Ctrl-C and SIGTERM are held back until
+        then (:func:`~lidar3d.stop_signals.deferred`): an answer left unread would be read as the
+        next request's, and a map transfer cut half way would leave the rest in the pipe."""
+        with stop_signals.deferred():
+            self._send((kind, *args))
+            while True:
+                try:
+                    answer, value, sweep_ms = self._replies.get(timeout=_POLL_S)
+                    break
+                except queue_module.Empty:
+                    self._check_alive()
+            if self._on_sweep_ms is not None:
+                for ms in sweep_ms:
+                    self._on_sweep_ms(ms)
+            if answer == "error":
+                raise value
+            if answer == "clouds":
+                try:
                     return MapClouds(*_receive_arrays(self._bulk, value))
-            except (EOFError, OSError) as err:
-                raise Lidar3dError(
-                    f"the dense map process ended while sending the map (exit code {self._process.exitcode})"
-                ) from err
-        return value
+                except (EOFError, OSError) as err:
+                    raise Lidar3dError(
+                        f"the dense map process ended while sending the map (exit code {self._process.exitcode})"
+                    ) from err
+            return value
 
     def _check_alive(self) -> None:
         if not self._process.is_alive():

@@ -4,7 +4,8 @@ The front end depends on nothing but the scan, so a child process can read the b
 while the main process deskews, registers and maps the previous scans: on a 2-core machine the two
 halves of the work overlap. The child sends :class:`~lidar3d.features.frontend.PreparedScan` records
 through a bounded queue; errors raised there (a bad bag, a decode error) are re-raised here
-unchanged, so the user sees the same one-line message as without prefetching.
+unchanged, so the user sees the same one-line message as without prefetching. The child ignores
+SIGINT and SIGTERM and exits when the pipeline's process is gone (:mod:`lidar3d.stop_signals`).
 """
 
 from __future__ import annotations
@@ -12,17 +13,16 @@ from __future__ import annotations
 import itertools
 import multiprocessing
 import queue as queue_module
-import signal
 import time
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
+from lidar3d import stop_signals
 from lidar3d.config import Config
 from lidar3d.errors import Lidar3dError
 from lidar3d.features.frontend import PreparedScan, prepare_scan
 from lidar3d.io.scan_reading import ReadStats
 from lidar3d.io.scan_source import open_scan_source
-from lidar3d.parent_watch import ParentGone, put_while_parent_lives
 
 __all__ = ["InlineScanStream", "PreparedScanStream", "open_prepared_scans"]
 
@@ -43,20 +43,15 @@ def _prepared(source, config: Config, start: int, stop: int | None) -> Iterator[
 
 def _produce(paths: list[str], config: Config, start: int, stop: int | None, out: multiprocessing.Queue) -> None:
     """Child process: read, prepare and send every scan, then the read statistics."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when to stop
+    stop_signals.as_child()  # the parent decides when to stop
     try:
         with open_scan_source(paths, config) as source:
-            put_while_parent_lives(out, ("open", source.topic, len(source)), _POLL_S)
+            out.put(("open", source.topic, len(source)))
             for prepared, read_ms in _prepared(source, config, start, stop):
-                put_while_parent_lives(out, ("scan", prepared, read_ms), _POLL_S)
-        put_while_parent_lives(out, ("end", source.stats), _POLL_S)
-    except ParentGone:
-        out.cancel_join_thread()  # no reader is left for what the queue still holds: exit without it
+                out.put(("scan", prepared, read_ms))
+        out.put(("end", source.stats))
     except BaseException as err:
-        try:
-            put_while_parent_lives(out, ("error", err), _POLL_S)
-        except ParentGone:
-            out.cancel_join_thread()
+        out.put(("error", err))
 
 
 class PreparedScanStream:
@@ -107,7 +102,7 @@ class PreparedScanStream:
             return message
 
     def __enter__(self) -> PreparedScanStream:
-        self._process.start()
+        stop_signals.start_child(self._process)
         try:
             _, self.topic, n_scans = self._get()
         except BaseException:
@@ -128,7 +123,7 @@ class PreparedScanStream:
 
     def close(self) -> None:
         if self._process.is_alive():
-            self._process.terminate()
+            self._process.kill()  # it ignores SIGTERM
         self._process.join(timeout=5)
         self._queue.close()
         self._queue.cancel_join_thread()

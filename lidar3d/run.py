@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from lidar3d import __version__
+from lidar3d import __version__, stop_signals
 from lidar3d.config import Config, config_to_toml
 from lidar3d.errors import ConfigError, Lidar3dError, OutputError
 from lidar3d.io.atomic import write_bytes_atomic, write_text_atomic
@@ -330,7 +330,8 @@ def run_bag(
             done = 0
             for prepared, read_scan_ms in stream:
                 read_ms.append(read_scan_ms)
-                estimate = pipeline.process(prepared)
+                with stop_signals.deferred():  # a stop lands between scans: the pipeline stays whole
+                    estimate = pipeline.process(prepared)
                 if on_health is not None and estimate is not None:
                     on_health(estimate.health)
                 done += 1
@@ -339,9 +340,10 @@ def run_bag(
                 now = time.perf_counter()
                 if now - last_checkpoint >= checkpoint_every_s:
                     with_map = now - last_map_checkpoint >= map_checkpoint_every_s
-                    result = pipeline.result(partial=True, with_map=with_map)
-                    summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms)
-                    publisher.publish(result, summary, with_map=with_map)
+                    with stop_signals.deferred():
+                        result = pipeline.result(partial=True, with_map=with_map)
+                        summary = _summary(result, inputs=inputs, topic=topic, runtime_s=now - t_start, read_ms=read_ms)
+                        publisher.publish(result, summary, with_map=with_map)
                     del result, summary  # a map checkpoint's clouds (tens of MB) are not kept until the next
                     last_checkpoint = now
                     if with_map:
@@ -365,27 +367,30 @@ def run_bag(
         pipeline.finish()  # after loop closures, the map is placed again with the corrected keyframes
         finished = True
     finally:
-        if not finished:
-            pipeline.finish()  # the last scan enters the map of the partial outputs
-        if drawing is not None:
-            drawing.join()
-        result = pipeline.result(partial=not finished)
-        runtime = time.perf_counter() - t_start
-        if pipeline.estimates:
-            summary = _summary(
-                result,
-                inputs=inputs,
-                topic=topic,
-                runtime_s=runtime,
-                read_ms=read_ms,
-                input_stats=input_stats,
-            )
-            summary = publisher.publish(result, summary)
+        with stop_signals.deferred():  # a Ctrl-C or SIGTERM now waits until what is finished is published
             if not finished:
-                log.warning("run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out)
-        if piece_store is not None:
-            piece_store.close()
-        keyframe_clouds.close()
+                pipeline.finish()  # the last scan enters the map of the partial outputs
+            if drawing is not None:
+                drawing.join()
+            result = pipeline.result(partial=not finished)
+            runtime = time.perf_counter() - t_start
+            if pipeline.estimates:
+                summary = _summary(
+                    result,
+                    inputs=inputs,
+                    topic=topic,
+                    runtime_s=runtime,
+                    read_ms=read_ms,
+                    input_stats=input_stats,
+                )
+                summary = publisher.publish(result, summary)
+                if not finished:
+                    log.warning(
+                        "run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out
+                    )
+            if piece_store is not None:
+                piece_store.close()
+            keyframe_clouds.close()
 
     if span_log is not None:
         span = _SpanInputs.read(span_log, T_imu_lidar, config)

@@ -156,25 +156,32 @@ def test_the_clouds_pipe_carries_arrays_whole_and_reports_a_cut_transfer():
         _receive_arrays(receiver, [(arrays[0].shape, arrays[0].dtype.str)] * 2)
 
 
-def test_a_ctrl_c_during_the_clouds_transfer_waits_for_its_end():
-    """A transfer cut half way would leave the rest of the map in the pipe: the interrupt is held
-    back until the arrays are read, then delivered."""
+@pytest.mark.parametrize("signum", ["SIGINT", "SIGTERM"])
+def test_a_stop_signal_during_a_request_waits_for_its_answer(signum):
+    """A transfer cut half way would leave the rest of the map in the pipe (an answer left unread
+    would be read as the next one's): Ctrl-C and SIGTERM are held back until the answer is read,
+    then delivered, with the handlers found before."""
     import signal
 
-    from lidar3d.map_process import _sigint_deferred
+    from lidar3d import stop_signals
+
+    number = getattr(signal, signum)
 
     # A test run started in the background of a non-interactive shell inherits SIGINT ignored
-    # (POSIX), and Python then keeps it ignored: give the test the interactive default.
-    inherited = signal.signal(signal.SIGINT, signal.default_int_handler)
+    # (POSIX), and Python then keeps it ignored: give the test a handler that raises.
+    def raising(signum, frame):
+        raise KeyboardInterrupt
+
+    inherited = signal.signal(number, raising)
     finished = False
     try:
-        with pytest.raises(KeyboardInterrupt), _sigint_deferred():
-            signal.raise_signal(signal.SIGINT)  # to this, the main, thread
+        with pytest.raises(KeyboardInterrupt), stop_signals.deferred():
+            signal.raise_signal(number)  # to this, the main, thread
             finished = True
         assert finished
-        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+        assert signal.getsignal(number) is raising
     finally:
-        signal.signal(signal.SIGINT, inherited)
+        signal.signal(number, inherited)
 
 
 def test_a_ctrl_c_ignored_from_the_start_stays_ignored_through_the_transfer():
@@ -182,11 +189,11 @@ def test_a_ctrl_c_ignored_from_the_start_stays_ignored_through_the_transfer():
     leaves a handler of its own behind."""
     import signal
 
-    from lidar3d.map_process import _sigint_deferred
+    from lidar3d import stop_signals
 
     inherited = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
-        with _sigint_deferred():
+        with stop_signals.deferred():
             signal.raise_signal(signal.SIGINT)
         assert signal.getsignal(signal.SIGINT) == signal.SIG_IGN
     finally:

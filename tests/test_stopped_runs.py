@@ -3,6 +3,8 @@ its child processes (prefetch, dense map) end with it, also when it is killed ou
 
 from __future__ import annotations
 
+import contextlib
+import json
 import os
 import signal
 import subprocess
@@ -37,12 +39,13 @@ def _ended(pid: int) -> bool:
 
 
 def _start_run(bag: Path, out: Path) -> tuple[subprocess.Popen, list[int]]:
-    """`lidar3d run` started, once it has both its children (their pids)."""
+    """`lidar3d run` started in a process group of its own, once it has both its children (their pids)."""
     process = subprocess.Popen(
         [sys.executable, "-m", "lidar3d.cli.main", "run", str(bag), "--out", str(out)],
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,
+        start_new_session=True,
     )
     deadline = time.monotonic() + 60
     while len(children := [c for c in _children(process.pid) if "spawn_main" in _cmdline(c)]) < 2:
@@ -71,14 +74,32 @@ def _wait_ended(pids: list[int], timeout_s: float) -> list[int]:
 pytestmark = pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="reads /proc (Linux)")
 
 
-def test_sigterm_stops_a_run_as_ctrl_c_does(bag, tmp_path):
-    process, children = _start_run(bag, tmp_path / "out")
-    process.send_signal(signal.SIGTERM)
+@pytest.mark.parametrize("how", ["once", "to the process group", "twice"])
+def test_sigterm_stops_a_run_as_ctrl_c_does(how, bag, tmp_path):
+    """Once the run has its children, SIGTERM to the run, to its process group (as a scheduler or
+    systemd sends it; the children leave the stop to the run), or twice in a row."""
+    out = tmp_path / "out"
+    process, children = _start_run(bag, out)
+    time.sleep(1.0)  # a few scans in, usually
+    if how == "to the process group":
+        os.killpg(process.pid, signal.SIGTERM)
+    else:
+        process.send_signal(signal.SIGTERM)
+    if how == "twice":
+        time.sleep(0.05)
+        with contextlib.suppress(ProcessLookupError):
+            process.send_signal(signal.SIGTERM)
     _, stderr = process.communicate(timeout=60)
+    if process.returncode == 0:
+        pytest.skip("the run finished before the signal")  # a fast machine: 30 scans in a second
     assert process.returncode == 143, stderr
     assert "Traceback" not in stderr
     assert stderr.strip().splitlines()[-1] == "lidar3d run: terminated (SIGTERM); finished outputs are kept"
     assert _wait_ended(children, 10.0) == []
+    if (out / "summary.json").exists():  # not when stopped before its first scan
+        summary = json.loads((out / "summary.json").read_text())
+        poses = [line for line in (out / "trajectory_tum.txt").read_text().splitlines() if not line.startswith("#")]
+        assert summary["partial"] is True and summary["scans"] == len(poses) > 0
 
 
 def test_the_children_of_a_killed_run_end_too(bag, tmp_path):

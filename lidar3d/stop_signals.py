@@ -1,0 +1,82 @@
+"""Ctrl-C (SIGINT) and SIGTERM around a run's child processes: held back where a stop half way
+would lose work, ignored by the children, and a child that outlives its run.
+
+A run has two children (:mod:`lidar3d.prefetch`, :mod:`lidar3d.map_process`). The run decides when
+they stop, so they ignore both signals, also while they still import (:func:`start_child`: an
+ignored signal stays ignored across ``exec``), and the run ends them with SIGKILL when it does not
+need them any more. A child whose run has died without ending it (``kill -9``, the out-of-memory
+killer) would wait on its queues for ever, holding hundreds of MB: :func:`as_child` starts a thread
+that exits the child as soon as its parent is gone (``os._exit``: a queue's writer thread blocked on
+a pipe nobody reads would hold up a normal exit).
+
+In the run's process, :func:`deferred` holds both signals back where a stop half way loses work (a
+map transfer cut in the middle leaves the rest in the pipe; outputs half published), then delivers
+the first one caught.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from multiprocessing.process import BaseProcess
+
+__all__ = ["STOP_SIGNALS", "as_child", "deferred", "start_child"]
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+def _in_main_thread() -> bool:
+    return threading.current_thread() is threading.main_thread()
+
+
+@contextlib.contextmanager
+def deferred() -> Iterator[None]:
+    """Hold back SIGINT and SIGTERM while the block runs, then deliver the first one caught (with
+    the handlers the block found). Only the main thread receives signals (and may set handlers);
+    elsewhere nothing is changed. A signal ignored before stays ignored."""
+    if not _in_main_thread():
+        yield
+        return
+    caught: list[int] = []
+    previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        if caught:
+            signal.raise_signal(caught[0])
+
+
+def start_child(process: BaseProcess) -> None:
+    """Start ``process`` with SIGINT and SIGTERM ignored from its first instruction: a Ctrl-C or a
+    SIGTERM sent to the process group while the child still imports must not kill it, since the run
+    then still asks it for its work."""
+    if not _in_main_thread():
+        process.start()  # only the main thread may change handlers; the child sets its own (as_child)
+        return
+    previous = {s: signal.signal(s, signal.SIG_IGN) for s in STOP_SIGNALS}
+    try:
+        process.start()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def _exit_when_gone(parent: BaseProcess) -> None:
+    parent.join()  # returns when the parent has ended (its end of a pipe closed)
+    os._exit(1)
+
+
+def as_child() -> None:
+    """Called first in a child process: ignore SIGINT and SIGTERM (the parent decides when to stop)
+    and exit as soon as the parent is gone."""
+    for s in STOP_SIGNALS:
+        signal.signal(s, signal.SIG_IGN)
+    parent = multiprocessing.parent_process()
+    if parent is not None:
+        threading.Thread(target=_exit_when_gone, args=(parent,), name="lidar3d-parent-watch", daemon=True).start()
