@@ -93,7 +93,7 @@ def _score(true_world: np.ndarray, moving: np.ndarray, removed: np.ndarray, seen
         "dynamic_removed": round(float(1.0 - np.isin(dynamic_only, stayed).mean()), 4) if dynamic_only.size else None,
         "dynamic_removed_by_range_m": _removed_by_range(keys, seen_from_m, dynamic_only, stayed),
         "static_voxels": int(static.size),
-        "static_kept": round(float(np.isin(static, stayed_static).mean()), 4),
+        "static_kept": round(float(np.isin(static, stayed_static).mean()), 4) if static.size else None,
         "points_removed": int(removed.sum()),
         "points": int(removed.size),
     }

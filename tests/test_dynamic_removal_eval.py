@@ -27,3 +27,4 @@ def test_removal_is_scored_per_voxel_and_by_the_nearest_range_it_was_seen_from()
     assert score["dynamic_removed_by_range_m"] == {"0-20": [1, 1.0], "20-40": [2, 0.5], "40+": [1, 1.0]}
     far_only = _score(points[:2], moving[:2], removed[:2], np.array([50.0, 60.0]))
     assert far_only["dynamic_removed_by_range_m"] == {"0-20": [0, None], "20-40": [0, None], "40+": [1, 1.0]}
+    assert far_only["static_voxels"] == 0 and far_only["static_kept"] is None  # no static voxel: nothing to keep
