@@ -185,6 +185,7 @@ class DenseMapProcess:
         stop_signals.start_child(self._process)
         bulk_sender.close()  # the child's copy is the only writer: its end reads as end of file here
         self._final: MapClouds | None = None  # the clouds of the finished map, once the child ended
+        self._stopped_by: str | None = None  # why this process stopped the child itself
         self._close = weakref.finalize(self, _stop, self._process, self._requests)
 
     def add(self, scan: Scan, T_world_lidar: np.ndarray, twist: np.ndarray, anchor: MapAnchor | None = None) -> None:
@@ -243,12 +244,21 @@ class DenseMapProcess:
             if answer == "clouds":
                 try:
                     return MapClouds(*_receive_arrays(self._bulk, value))
-                except (EOFError, OSError) as err:
-                    raise Lidar3dError(
-                        f"the dense map process ended while sending the map (exit code {self._process.exitcode})"
-                    ) from err
+                except BaseException as err:
+                    # The rest of the map is still in the pipe (the child blocked writing it): the child
+                    # is out of step with any later request, so it goes now rather than be waited for.
+                    self._process.kill()
+                    self._process.join(timeout=5)
+                    self._stopped_by = f"reading the map failed ({type(err).__name__})"
+                    if isinstance(err, (EOFError, OSError)):
+                        raise Lidar3dError(
+                            f"the dense map process ended while sending the map (exit code {self._process.exitcode})"
+                        ) from err
+                    raise
             return value
 
     def _check_alive(self) -> None:
+        if self._stopped_by is not None:
+            raise Lidar3dError(f"the dense map process was stopped: {self._stopped_by}")
         if not self._process.is_alive():
             raise Lidar3dError(f"the dense map process ended unexpectedly (exit code {self._process.exitcode})")

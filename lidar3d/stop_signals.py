@@ -21,8 +21,9 @@ import multiprocessing
 import os
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from multiprocessing.process import BaseProcess
+from typing import Any
 
 __all__ = ["STOP_SIGNALS", "as_child", "deferred", "start_child"]
 
@@ -42,29 +43,49 @@ def deferred() -> Iterator[None]:
         yield
         return
     caught: list[int] = []
-    previous = {s: signal.signal(s, lambda signum, frame: caught.append(signum)) for s in STOP_SIGNALS}
+    catch = {s: (lambda signum, frame: caught.append(signum)) for s in STOP_SIGNALS}
+    previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
     try:
+        _set_handlers(catch)
         yield
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        _set_handlers(previous)
         if caught:
             signal.raise_signal(caught[0])
 
 
+def _set_handlers(handlers: Mapping[signal.Signals, Any]) -> None:
+    """Install every handler of ``handlers`` ({signal: handler}; None, a handler not set from
+    Python, is left as it is), even when one of the signals arrives half way and its old handler
+    raises (a Ctrl-C between two settings): the rest are installed first, then that is raised."""
+    pending: KeyboardInterrupt | None = None
+    for signum, handler in handlers.items():
+        while handler is not None:
+            try:
+                signal.signal(signum, handler)
+                break
+            except KeyboardInterrupt as err:  # raised by a handler between two bytecodes
+                pending = pending or err
+    if pending is not None:
+        raise pending
+
+
 def start_child(process: BaseProcess) -> None:
-    """Start ``process`` with SIGINT and SIGTERM ignored from its first instruction: a Ctrl-C or a
-    SIGTERM sent to the process group while the child still imports must not kill it, since the run
-    then still asks it for its work."""
+    """Start ``process`` with SIGINT and SIGTERM ignored from its first instruction (an ignored
+    signal stays ignored across ``exec``; :func:`as_child` keeps them so): a Ctrl-C or a SIGTERM sent
+    to the process group while the child still imports must not kill it, since the run then still
+    asks it for its work. Ignoring is process-wide, so a stop sent to this process during the start
+    (a few milliseconds) is lost; blocking it instead would hold it back only from this thread, and
+    another thread of the process would take it in the middle of the start."""
     if not _in_main_thread():
         process.start()  # only the main thread may change handlers; the child sets its own (as_child)
         return
-    previous = {s: signal.signal(s, signal.SIG_IGN) for s in STOP_SIGNALS}
+    previous = {s: signal.getsignal(s) for s in STOP_SIGNALS}
     try:
+        _set_handlers(dict.fromkeys(STOP_SIGNALS, signal.SIG_IGN))
         process.start()
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+        _set_handlers(previous)
 
 
 def _exit_when_gone(parent: BaseProcess) -> None:

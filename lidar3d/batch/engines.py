@@ -4,12 +4,13 @@ write the same outputs.
 
 **local** - :class:`concurrent.futures.ProcessPoolExecutor` with the ``spawn`` start method (no
 forked copies of the parent's threads or open files), one process per worker, reused across bags.
-Workers ignore SIGINT; on Ctrl-C the parent sets a shared stop flag that every running job checks
-after each scan, so they stop within one scan and remove their staging folders; bags not yet
-started are cancelled. A second Ctrl-C kills the workers outright. If a worker process dies (a
-crash in native code, the out-of-memory killer), the pool breaks; the bags that were running are
-then retried one at a time in a single-worker pool, so the bag that kills its worker is named and
-failed and every other bag still runs.
+Workers ignore SIGINT and SIGTERM (a SIGTERM to the process group reaches the parent alone) and exit
+when the parent is gone (:mod:`lidar3d.stop_signals`). On Ctrl-C or SIGTERM the parent sets a shared
+stop flag that every running job checks after each scan, so they stop within one scan and remove
+their staging folders; bags not yet started are cancelled. A second Ctrl-C kills the workers
+outright. If a worker process dies (a crash in native code, the out-of-memory killer), the pool
+breaks; the bags that were running are then retried one at a time in a single-worker pool, so the
+bag that kills its worker is named and failed and every other bag still runs.
 
 **ray** - each bag is a Ray task (``num_cpus=1``, no automatic retry) on a local Ray instance
 (``num_cpus`` = workers) or on an existing cluster (``address``; ``"auto"`` for the one this
@@ -39,6 +40,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any, Protocol
 
+from lidar3d import stop_signals
 from lidar3d.batch.jobs import THREAD_VARIABLES, BagJob, JobResult, JobStatus, limit_threads, process_job
 from lidar3d.errors import ConfigError
 
@@ -76,7 +78,7 @@ _JOB_FUNCTION: Callable[..., JobResult] = process_job
 
 def _init_worker(stop: Any, events: Any, threads: int | None, job_function: Callable[..., JobResult] | None) -> None:
     global _STOP, _EVENTS, _JOB_FUNCTION
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides how to stop
+    stop_signals.as_child()  # the parent decides how to stop (SIGINT, SIGTERM ignored) and the worker ends with it
     handler = logging.StreamHandler()
     handler.setFormatter(logging.Formatter("%(levelname)s: %(message)s"))
     package_log = logging.getLogger("lidar3d")
