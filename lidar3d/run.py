@@ -368,11 +368,15 @@ def run_bag(
         finished = True
     finally:
         with stop_signals.deferred():  # a Ctrl-C or SIGTERM now waits until what is finished is published
+            map_failed: Lidar3dError | None = None
             if not finished:
-                pipeline.finish()  # the last scan enters the map of the partial outputs
+                try:
+                    pipeline.finish()  # the last scan enters the map of the partial outputs
+                except Lidar3dError as err:  # the map's process failed: the poses are published without it
+                    map_failed = err
             if drawing is not None:
                 drawing.join()
-            result = pipeline.result(partial=not finished)
+            result = pipeline.result(partial=not finished, with_map=map_failed is None)
             runtime = time.perf_counter() - t_start
             if pipeline.estimates:
                 summary = _summary(
@@ -383,7 +387,7 @@ def run_bag(
                     read_ms=read_ms,
                     input_stats=input_stats,
                 )
-                summary = publisher.publish(result, summary)
+                summary = publisher.publish(result, summary, with_map=map_failed is None)
                 if not finished:
                     log.warning(
                         "run stopped after %d scans; partial outputs written to %s", len(result.trajectory), out
@@ -391,6 +395,8 @@ def run_bag(
             if piece_store is not None:
                 piece_store.close()
             keyframe_clouds.close()
+            if map_failed is not None:
+                raise map_failed
 
     if span_log is not None:
         span = _SpanInputs.read(span_log, T_imu_lidar, config)

@@ -110,3 +110,36 @@ def test_the_children_of_a_killed_run_end_too(bag, tmp_path):
     for pid in alive:  # do not leave them behind for the next test
         os.kill(pid, signal.SIGKILL)
     assert alive == []
+
+
+def _has_open(pid: int, path: Path) -> bool:
+    try:
+        return any(os.readlink(fd) == str(path) for fd in Path(f"/proc/{pid}/fd").iterdir())
+    except OSError:
+        return False
+
+
+def test_a_run_whose_map_process_dies_keeps_its_poses(bag, tmp_path):
+    """The dense map's process killed mid-run: one line and exit 1, and the poses tracked so far
+    are published (without a map) as a partial run."""
+    out = tmp_path / "out"
+    process, children = _start_run(bag, out)
+    deadline = time.monotonic() + 30
+    while not (readers := [c for c in children if _has_open(c, bag.resolve())]) and time.monotonic() < deadline:
+        time.sleep(0.02)  # the prefetch process is the one with the bag open
+    assert len(readers) == 1, "the prefetch process never opened the bag"
+    (map_process,) = [c for c in children if c not in readers]
+    time.sleep(1.0)  # some scans in
+    os.kill(map_process, signal.SIGKILL)
+    _, stderr = process.communicate(timeout=60)
+    if process.returncode == 0:
+        pytest.skip("the run finished before the kill")
+    assert process.returncode == 1, stderr
+    assert "Traceback" not in stderr
+    line = "lidar3d run: error: the dense map process ended unexpectedly (exit code -9)"
+    assert stderr.strip().splitlines()[-1] == line
+    summary = json.loads((out / "summary.json").read_text())
+    poses = [line for line in (out / "trajectory_tum.txt").read_text().splitlines() if not line.startswith("#")]
+    assert summary["partial"] is True and summary["scans"] == len(poses) > 0
+    assert summary["map_points"] == 0 and not (out / "map.pcd").exists()
+    assert _wait_ended(children, 10.0) == []
