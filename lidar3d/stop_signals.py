@@ -9,9 +9,11 @@ killer) would wait on its queues for ever, holding hundreds of MB: :func:`as_chi
 that exits the child as soon as its parent is gone (``os._exit``: a queue's writer thread blocked on
 a pipe nobody reads would hold up a normal exit).
 
-In the run's process, :func:`deferred` holds both signals back where a stop half way loses work (a
-map transfer cut in the middle leaves the rest in the pipe; outputs half published), then delivers
-the first one caught.
+In the command line's process, :func:`sigterm_as_interrupt` makes SIGTERM (``kill``, a job
+scheduler, a container stopping) raise :class:`Terminated`, a ``KeyboardInterrupt``, so every
+command stops on it as on Ctrl-C. In the run's process, :func:`deferred` holds both signals back
+where a stop half way loses work (a map transfer cut in the middle leaves the rest in the pipe;
+outputs half published), then delivers the first one caught.
 """
 
 from __future__ import annotations
@@ -25,13 +27,38 @@ from collections.abc import Iterator, Mapping
 from multiprocessing.process import BaseProcess
 from typing import Any
 
-__all__ = ["STOP_SIGNALS", "as_child", "deferred", "start_child"]
+__all__ = ["STOP_SIGNALS", "Terminated", "as_child", "deferred", "sigterm_as_interrupt", "start_child"]
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 
 def _in_main_thread() -> bool:
     return threading.current_thread() is threading.main_thread()
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM turned into an interrupt: a run publishes what it finished, the processes it started
+    end with it, a batch marks its bags; what catches ``KeyboardInterrupt`` catches this too."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: a second would cut the stop short
+    raise Terminated
+
+
+@contextlib.contextmanager
+def sigterm_as_interrupt() -> Iterator[None]:
+    """SIGTERM raises :class:`Terminated` in the main thread while the block runs (elsewhere, where
+    no signal handler can be set, nothing changes)."""
+    if not _in_main_thread():
+        yield
+        return
+    previous = signal.getsignal(signal.SIGTERM)
+    _set_handlers({signal.SIGTERM: _raise_terminated})
+    try:
+        yield
+    finally:
+        _set_handlers({signal.SIGTERM: previous})
 
 
 @contextlib.contextmanager

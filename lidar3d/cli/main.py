@@ -8,21 +8,18 @@ so ``lidar3d --help`` stays instant. Every subcommand has a library-function twi
 from __future__ import annotations
 
 import argparse
-import contextlib
 import importlib
 import logging
 import os
 import pkgutil
-import signal
 import sys
-import threading
-from collections.abc import Iterator, Sequence
+from collections.abc import Sequence
 
-from lidar3d import __version__
+from lidar3d import __version__, stop_signals
 from lidar3d.cli.options import HelpFormatter, add_global_arguments
 from lidar3d.errors import Lidar3dError
 
-__all__ = ["Terminated", "build_parser", "entry_point", "main"]
+__all__ = ["build_parser", "entry_point", "main"]
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -56,31 +53,6 @@ def _configure_logging(verbose: bool, quiet: bool) -> None:
     root.propagate = False
 
 
-class Terminated(KeyboardInterrupt):
-    """SIGTERM (``kill``, a job scheduler, a container stopping) turned into an interrupt, so a command
-    stops as on Ctrl-C: a run publishes what it finished, the processes it started end with it, and
-    a batch marks its bags; the commands that catch ``KeyboardInterrupt`` catch this too."""
-
-
-def _raise_terminated(signum: int, frame: object) -> None:
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # one is enough: a second would cut the stop short
-    raise Terminated
-
-
-@contextlib.contextmanager
-def _sigterm_as_interrupt() -> Iterator[None]:
-    """SIGTERM raises :class:`Terminated` in the main thread while the block runs (elsewhere, where
-    no signal handler can be set, nothing changes)."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    previous = signal.signal(signal.SIGTERM, _raise_terminated)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the CLI in process; returns the exit code (0 ok, 1 known error, 130 interrupted, 143
     terminated by SIGTERM, 141 the reader of stdout went away, as in ``lidar3d info BAG | head``)."""
@@ -91,7 +63,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
     _configure_logging(args.verbose, args.quiet)
     try:
-        with _sigterm_as_interrupt():
+        with stop_signals.sigterm_as_interrupt():
             code = int(args.func(args) or 0)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
         return code
@@ -101,7 +73,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except Lidar3dError as err:
         print(f"lidar3d {args.command}: error: {err}", file=sys.stderr)
         return 1
-    except Terminated:
+    except stop_signals.Terminated:
         print(f"lidar3d {args.command}: terminated (SIGTERM); finished outputs are kept", file=sys.stderr)
         return 128 + 15
     except KeyboardInterrupt:
